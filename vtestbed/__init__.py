@@ -1,0 +1,3 @@
+"""vtestbed: a virtual lab for robot joint-stiffness identification."""
+
+__version__ = "0.1.0"

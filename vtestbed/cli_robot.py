@@ -1,0 +1,111 @@
+"""``vtestbed robot``, ``vtestbed load`` and ``vtestbed models``: the truth world at a glance."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from .errors import OutOfRangeError
+from .robots import available_robots, load_robot
+from .transforms import displacement
+
+DEFAULT_POSE_DEG = "0,-60,-20,30,50,45"
+
+
+def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
+    """Parse ``"a,b,c,d,e,f"`` (degrees) into radians, with a clear error."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise OutOfRangeError(f"{field} must be {count} comma-separated numbers in degrees, got {text!r}") from None
+    if len(values) != count:
+        raise OutOfRangeError(f"{field} must have {count} angles, got {len(values)}: {text!r}")
+    return np.radians(values)
+
+
+def pose_from_args(robot, args) -> np.ndarray:
+    """DH pose [rad] from ``--q-deg`` (DH) or ``--controller-deg`` (KUKA A1..A6)."""
+    if getattr(args, "controller_deg", None):
+        return robot.controller_to_dh(parse_angles_deg(args.controller_deg, "--controller-deg", robot.dof))
+    return parse_angles_deg(args.q_deg, "--q-deg", robot.dof)
+
+
+def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--q-deg", default=DEFAULT_POSE_DEG, help="DH joint angles in degrees (default %(default)s)")
+    parser.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)")
+
+
+def _cmd_robot(args) -> int:
+    robot = load_robot(args.robot)
+    print(f"{robot.display_name} ({robot.name}), {robot.dof} joints, total mass {robot.total_mass:.0f} kg")
+    print(f"{'joint':8}{'alpha[deg]':>11}{'a[mm]':>8}{'d[mm]':>8}{'limits DH [deg]':>20}{'k_true [N*mm/rad]':>20}")
+    for j in robot.joints:
+        lim = f"[{np.degrees(j.lower):.0f}, {np.degrees(j.upper):.0f}]"
+        print(
+            f"{j.name:8}{np.degrees(j.alpha_prev):11.0f}{j.a_prev * 1e3:8.0f}{j.d * 1e3:8.0f}"
+            f"{lim:>20}{j.stiffness_true * 1e3:20.4e}"
+        )
+    print(f"robots available: {', '.join(available_robots())}")
+    return 0
+
+
+def _cmd_load(args) -> int:
+    from .rig import Rig
+
+    robot = load_robot(args.robot)
+    rig = Rig(robot)
+    rig.command(pose_from_args(robot, args))
+    rig.hook(args.hook, args.anchor)
+    unloaded = rig.solve()
+    loaded = rig.tighten(args.tension)
+    disp = displacement(unloaded.block_pose, loaded.block_pose)
+    result = {
+        "q_cmd_deg": np.degrees(loaded.q_cmd).tolist(),
+        "deflection_gravity_urad": (unloaded.deflection * 1e6).tolist(),
+        "deflection_wire_urad": ((loaded.q - unloaded.q) * 1e6).tolist(),
+        "wire_tension_N": loaded.wire_tension,
+        "sensor_wrench_unloaded": unloaded.sensor_wrench.tolist(),
+        "sensor_wrench_loaded": loaded.sensor_wrench.tolist(),
+        "block_displacement_mm_mrad": (disp * 1e3).tolist(),
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"pose (DH) [deg]: {np.round(result['q_cmd_deg'], 3).tolist()}; wire {args.hook} -> {args.anchor}")
+    print(f"wire tension {loaded.wire_tension:.3f} N; equilibrium residual {loaded.residual:.1e} N*m")
+    print(f"{'joint':8}{'gravity defl [urad]':>22}{'wire defl [urad]':>20}")
+    for name, g, w in zip(robot.joint_names, result["deflection_gravity_urad"], result["deflection_wire_urad"]):
+        print(f"{name:8}{g:22.3f}{w:20.3f}")
+    print("F/T loaded   [N, N*m]:", np.array2string(loaded.sensor_wrench, precision=3))
+    print("block displacement, base frame: translation [mm]", np.round(disp[:3] * 1e3, 5).tolist(),
+          "rotation [mrad]", np.round(disp[3:] * 1e3, 5).tolist())
+    return 0
+
+
+def _cmd_models(args) -> int:
+    from .mjcf import write_model_files
+
+    for path in write_model_files(load_robot(args.robot)):
+        print(f"wrote {path}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("robot", help="summary of a robot description")
+    p.add_argument("--robot", default="kuka_kr60_3")
+    p.set_defaults(func=_cmd_robot)
+
+    p = sub.add_parser("load", help="joint deflections and block displacement at a pose and a wire tension")
+    p.add_argument("--robot", default="kuka_kr60_3")
+    add_pose_arguments(p)
+    p.add_argument("--tension", type=float, default=200.0, help="wire tension in N (default %(default)s)")
+    p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
+    p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_load)
+
+    p = sub.add_parser("models", help="regenerate the committed MJCF files from the description")
+    p.add_argument("--robot", default="kuka_kr60_3")
+    p.set_defaults(func=_cmd_models)

@@ -1,0 +1,69 @@
+"""One error hierarchy for everything vtestbed refuses to do.
+
+Every message names the offending field and the valid range or the valid names, so that a
+researcher can fix the input without reading a traceback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class VtestbedError(Exception):
+    """Base class of every error vtestbed raises on purpose."""
+
+
+class UnknownNameError(VtestbedError, KeyError):
+    """A name (robot, anchor, hook, joint, ...) that does not exist."""
+
+    def __init__(self, kind: str, name: str, valid: Iterable[str]):
+        self.kind, self.name, self.valid = kind, name, sorted(valid)
+        super().__init__(f"unknown {kind} {name!r}; valid names: {', '.join(self.valid)}")
+
+    def __str__(self) -> str:  # KeyError would quote the whole message otherwise
+        return self.args[0]
+
+
+class OutOfRangeError(VtestbedError, ValueError):
+    """A value outside its valid range; the message names the field and the range."""
+
+
+class JointLimitError(OutOfRangeError):
+    """A commanded pose outside the robot's joint limits."""
+
+
+class SingularPoseError(VtestbedError, ValueError):
+    """A pose at (or numerically at) a kinematic singularity."""
+
+
+class SlackWireError(VtestbedError, ValueError):
+    """The wire is slack where a taut wire is required."""
+
+
+class SensorOverloadError(OutOfRangeError):
+    """A wrench outside the force/torque sensor's measuring range."""
+
+
+class ConvergenceError(VtestbedError, RuntimeError):
+    """An iterative solver did not reach its tolerance."""
+
+
+class ScenarioError(VtestbedError, ValueError):
+    """A malformed scenario or campaign file."""
+
+
+class DatasetError(VtestbedError, ValueError):
+    """A measurement dataset that is missing files or is inconsistent."""
+
+
+class ScanError(VtestbedError, ValueError):
+    """A scan that cannot deliver the block frame (block out of view, faces missing)."""
+
+
+def check_range(field: str, value: float, low: float, high: float, unit: str = "") -> float:
+    """Return ``value`` if ``low <= value <= high``, else raise :class:`OutOfRangeError`."""
+    value = float(value)
+    if not (low <= value <= high):  # also rejects NaN
+        u = f" {unit}" if unit else ""
+        raise OutOfRangeError(f"{field} = {value:g}{u} is outside the valid range [{low:g}, {high:g}]{u}")
+    return value

@@ -1,0 +1,238 @@
+"""Build the MuJoCo truth world from a robot description and a lab setup (MjSpec).
+
+``build_robot_spec`` gives the bare robot (``models/<robot>/<robot>.xml``);
+``build_scene_spec`` adds the floor, the table and its rings, the force sensor, the target
+block and the wire (``models/<robot>/scene.xml``). The committed XML files are written by
+:func:`write_model_files` and a test checks that they equal the generator's output.
+
+Joint ``joint<i>`` is a hinge about the DH z axis whose qpos is the DH angle theta_i; its
+spring stiffness is the true joint stiffness and its spring reference (``qpos_spring``) is the
+commanded pose, set by :mod:`vtestbed.rig` at run time.
+
+Further physics (link compliance, a gravity compensator, ...) comes in as :class:`SceneEffect`
+objects that edit the spec; the researcher side never sees them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from .lab import LabSetup
+from .robots import RobotDescription, robot_dir
+from .transforms import quat_wxyz, rot_x
+
+# Names the rest of vtestbed relies on.
+FLANGE_SITE = "flange"
+SENSOR_SITE = "ft_sensor"
+BLOCK_SITE = "block"
+WIRE_TENDON = "wire"
+WIRE_HOOK_SITE = "wire_hook"
+WIRE_ANCHOR_SITE = "wire_anchor"
+WIRE_VISUAL_BODY = "wire_visual"
+TOOL_BODY = "ft_tool"
+SLACK_LENGTH = 100.0  # m: a dead band this long leaves the wire slack in any pose
+SCANNABLE_GROUP = 0  # geom group of everything a scanner can see
+MARKER_GROUP = 3  # geom group of markers that a scanner must not see
+
+_LINK_RADII = (0.16, 0.11, 0.10, 0.075, 0.065, 0.05)
+
+
+class SceneEffect(Protocol):
+    """A physical effect of the world that the paper's model leaves out.
+
+    ``apply`` edits the scene spec before compilation (add a body, a tendon, a joint, ...).
+    The rig solves equilibrium over every degree of freedom of the compiled model, so an
+    effect that adds joints needs nothing else.
+    """
+
+    name: str
+
+    def apply(self, spec: mujoco.MjSpec, robot: RobotDescription, lab: LabSetup) -> None: ...
+
+
+def _new_spec(model_name: str) -> mujoco.MjSpec:
+    spec = mujoco.MjSpec()
+    spec.modelname = model_name
+    spec.compiler.degree = False  # radians everywhere (MuJoCo defaults to degrees)
+    spec.compiler.autolimits = True
+    return spec
+
+
+def _visual_geom(body, **kwargs):
+    geom = body.add_geom(**kwargs)
+    geom.contype = 0
+    geom.conaffinity = 0
+    geom.group = SCANNABLE_GROUP
+    geom.mass = 0.0
+    return geom
+
+
+def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription) -> mujoco.MjsBody:
+    """Add the robot chain to ``spec``; returns the last link's body."""
+    base = spec.worldbody.add_body(name="base")
+    _visual_geom(
+        base,
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[0.25, 0.15, 0.0],
+        pos=[0.0, 0.0, 0.15],
+        rgba=[0.3, 0.3, 0.3, 1.0],
+    )
+    parent = base
+    for i, joint in enumerate(robot.joints):
+        placement = robot.link_transform(i, 0.0)
+        body = parent.add_body(
+            name=f"link{i + 1}", pos=placement[:3, 3], quat=quat_wxyz(rot_x(joint.alpha_prev))
+        )
+        body.explicitinertial = True
+        body.mass = joint.mass
+        body.ipos = list(joint.com)
+        body.inertia = list(joint.inertia_diag)
+        hinge = body.add_joint(name=joint.name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
+        hinge.range = [joint.lower, joint.upper]
+        hinge.stiffness[0] = joint.stiffness_true
+        hinge.damping[0] = joint.damping
+        hinge.armature = joint.armature
+        # Visual shell from this joint's origin to the next one (or a sphere at the wrist).
+        nxt = robot.link_transform(i + 1, 0.0)[:3, 3] if i + 1 < robot.dof else np.zeros(3)
+        rgba = [1.0, 0.45, 0.0, 1.0] if i % 2 == 0 else [0.9, 0.9, 0.9, 1.0]
+        if np.linalg.norm(nxt) > 1e-6:
+            _visual_geom(
+                body,
+                type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                size=[_LINK_RADII[i], 0.0, 0.0],
+                fromto=[0.0, 0.0, 0.0, *nxt],
+                rgba=rgba,
+            )
+        else:
+            _visual_geom(body, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[_LINK_RADII[i], 0, 0], rgba=rgba)
+        parent = body
+    parent.add_site(name=FLANGE_SITE, size=[0.01, 0.0, 0.0], group=MARKER_GROUP)
+    return parent
+
+
+def build_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
+    """The bare robot: base, six links with spring joints, and the ``flange`` site."""
+    spec = _new_spec(robot.name)
+    _add_robot(spec, robot)
+    return spec
+
+
+def _add_tool(flange: mujoco.MjsBody, lab: LabSetup) -> None:
+    sensor, block = lab.sensor, lab.block
+    mount = flange.add_body(name="ft_mount")
+    half = sensor.height / 2
+    mount_geom = _visual_geom(
+        mount,
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[sensor.diameter / 2, (sensor.adapter_thickness + half) / 2, 0.0],
+        pos=[0.0, 0.0, (sensor.adapter_thickness + half) / 2],
+        rgba=[0.6, 0.6, 0.65, 1.0],
+    )
+    mount_geom.mass = sensor.mass_mount_side
+    tool = mount.add_body(name=TOOL_BODY, pos=sensor.origin_in_flange)
+    tool.add_site(name=SENSOR_SITE, size=[0.005, 0.0, 0.0], group=MARKER_GROUP)
+    tool_half = _visual_geom(
+        tool,
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[sensor.diameter / 2, half / 2, 0.0],
+        pos=[0.0, 0.0, -half / 2],
+        rgba=[0.6, 0.6, 0.65, 1.0],
+    )
+    tool_half.mass = sensor.mass_tool_side
+    stem = _visual_geom(
+        tool,
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[0.015, block.standoff / 2, 0.0],
+        pos=[0.0, 0.0, block.standoff / 2],
+        rgba=[0.5, 0.5, 0.5, 1.0],
+    )
+    stem.mass = block.stem_mass
+    block_in_tool = lab.block_in_flange[:3, 3] - sensor.origin_in_flange
+    cube = _visual_geom(
+        tool,
+        name="target_block",
+        type=mujoco.mjtGeom.mjGEOM_BOX,  # a primitive box: ray hits exact to 1e-15 m
+        size=[block.edge / 2] * 3,
+        pos=block_in_tool - block.edge / 2,
+        rgba=[0.75, 0.78, 0.85, 1.0],
+    )
+    cube.mass = block.mass
+    tool.add_site(name=BLOCK_SITE, pos=block_in_tool, size=[0.004, 0.0, 0.0], group=MARKER_GROUP)
+    default_hook = next(iter(block.hooks))
+    for name, pos in block.hooks.items():
+        tool.add_site(name=name, pos=block_in_tool + np.array(pos), size=[0.003, 0, 0], group=MARKER_GROUP)
+    tool.add_site(
+        name=WIRE_HOOK_SITE, pos=block_in_tool + block.hook(default_hook), size=[0.003, 0, 0], group=MARKER_GROUP
+    )
+
+
+def _add_table_and_wire(spec: mujoco.MjSpec, lab: LabSetup) -> None:
+    table, wire = lab.table, lab.wire
+    world = spec.worldbody
+    _visual_geom(world, name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[5.0, 5.0, 0.05], rgba=[0.4, 0.45, 0.4, 1])
+    _visual_geom(
+        world,
+        name="table_top",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[table.size[0] / 2, table.size[1] / 2, 0.02],
+        pos=[table.center[0], table.center[1], table.height - 0.02],
+        rgba=[0.55, 0.4, 0.25, 1.0],
+    )
+    for name, pos in table.anchors.items():
+        world.add_site(name=name, pos=pos, size=[0.01, 0.0, 0.0], group=MARKER_GROUP)
+    first_anchor = next(iter(table.anchors.values()))
+    world.add_site(name=WIRE_ANCHOR_SITE, pos=first_anchor, size=[0.006, 0.0, 0.0], group=MARKER_GROUP)
+    tendon = spec.add_tendon(name=WIRE_TENDON)
+    tendon.wrap_site(WIRE_HOOK_SITE)
+    tendon.wrap_site(WIRE_ANCHOR_SITE)
+    tendon.stiffness[0] = wire.axial_rigidity  # set to EA/L0 when the wire is tightened
+    tendon.springlength = [0.0, SLACK_LENGTH]  # dead band: pulls only beyond L0, never pushes
+    tendon.damping[0] = wire.damping
+    tendon.width = wire.diameter / 2
+    # The tendon is not a geom: a mocap capsule stands in for the wire so scans see it.
+    visual = world.add_body(name=WIRE_VISUAL_BODY, mocap=True, pos=[0, 0, -10.0])
+    _visual_geom(
+        visual, name="wire_geom", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[wire.diameter / 2, 3.0, 0.0],
+        rgba=[0.2, 0.2, 0.2, 1.0],
+    )
+
+
+def build_scene_spec(
+    robot: RobotDescription, lab: LabSetup | None = None, effects: tuple[SceneEffect, ...] = ()
+) -> mujoco.MjSpec:
+    """The full truth world: robot, sensor, block, table, rings and wire, plus ``effects``."""
+    lab = lab or LabSetup()
+    spec = _new_spec(f"{robot.name}_scene")
+    spec.option.timestep = 2e-4
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # a statics rig: no contacts
+    flange = _add_robot(spec, robot)
+    _add_tool(flange, lab)
+    _add_table_and_wire(spec, lab)
+    for kind, suffix in ((mujoco.mjtSensor.mjSENS_FORCE, "force"), (mujoco.mjtSensor.mjSENS_TORQUE, "torque")):
+        spec.add_sensor(name=f"ft_{suffix}", type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=SENSOR_SITE)
+    for effect in effects:
+        effect.apply(spec, robot, lab)
+    return spec
+
+
+def model_files(robot: RobotDescription) -> dict[str, str]:
+    """The XML texts of ``<robot>.xml`` and ``scene.xml`` as the generator produces them."""
+    robot_xml = build_robot_spec(robot).to_xml()
+    scene_xml = build_scene_spec(robot).to_xml()
+    return {f"{robot.name.removeprefix('kuka_')}.xml": robot_xml, "scene.xml": scene_xml}
+
+
+def write_model_files(robot: RobotDescription, directory: Path | None = None) -> list[Path]:
+    """Regenerate the committed MJCF files of ``robot``; returns the written paths."""
+    directory = directory or robot_dir(robot.name)
+    written = []
+    for name, text in model_files(robot).items():
+        path = Path(directory) / name
+        path.write_text(text)
+        written.append(path)
+    return written

@@ -1,0 +1,180 @@
+"""Robot descriptions: modified-DH table, limits, inertias and true stiffness, as data.
+
+A description is read from ``models/<name>/robot.toml``. It is the one source from which both
+the truth world (MuJoCo, :mod:`vtestbed.mjcf`) and the researcher's model (Pinocchio,
+:mod:`vtestbed.kinematics`) are built. The true stiffness lives here too, but only the world
+and the reports read it; the identification side never does.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import JointLimitError, ScenarioError, UnknownNameError
+from .transforms import modified_dh
+
+MODELS_DIR = Path(os.environ.get("VTESTBED_MODELS", Path(__file__).resolve().parents[1] / "models"))
+
+
+@dataclass(frozen=True)
+class JointDescription:
+    """One revolute joint and the link it moves (all SI; angles in rad unless named _deg)."""
+
+    name: str
+    controller_name: str
+    alpha_prev: float  # rad
+    a_prev: float  # m
+    d: float  # m
+    controller_sign: float
+    controller_offset: float  # rad: theta = sign * A + offset
+    lower: float  # rad, DH convention
+    upper: float  # rad, DH convention
+    stiffness_true: float  # N*m/rad
+    damping: float  # N*m*s/rad, only for dynamic settling
+    armature: float  # kg*m^2, only for dynamic settling
+    mass: float  # kg
+    com: tuple[float, float, float]  # m, in the link's DH frame
+    inertia_diag: tuple[float, float, float]  # kg*m^2, about the com, DH-frame axes
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """A serial 6R robot as data (see ``models/<name>/README.md`` for the sources)."""
+
+    name: str
+    display_name: str
+    base_mass: float
+    joints: tuple[JointDescription, ...]
+    source: Path
+
+    @property
+    def dof(self) -> int:
+        return len(self.joints)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def lower(self) -> np.ndarray:
+        """DH lower limits [rad], shape (n,)."""
+        return np.array([j.lower for j in self.joints])
+
+    @property
+    def upper(self) -> np.ndarray:
+        """DH upper limits [rad], shape (n,)."""
+        return np.array([j.upper for j in self.joints])
+
+    @property
+    def stiffness_true(self) -> np.ndarray:
+        """Ground-truth joint stiffness [N*m/rad], shape (n,). Truth: reports and world only."""
+        return np.array([j.stiffness_true for j in self.joints])
+
+    @property
+    def total_mass(self) -> float:
+        return self.base_mass + sum(j.mass for j in self.joints)
+
+    def link_transform(self, index: int, theta: float) -> np.ndarray:
+        """(4, 4) pose of DH frame ``index+1`` in frame ``index`` at joint angle ``theta`` [rad]."""
+        j = self.joints[index]
+        return modified_dh(j.alpha_prev, j.a_prev, theta, j.d)
+
+    def controller_to_dh(self, angles_controller) -> np.ndarray:
+        """KUKA controller angles A1..A6 [rad] -> DH angles theta [rad]."""
+        a = np.asarray(angles_controller, dtype=float)
+        sign = np.array([j.controller_sign for j in self.joints])
+        offset = np.array([j.controller_offset for j in self.joints])
+        return sign * a + offset
+
+    def dh_to_controller(self, theta) -> np.ndarray:
+        """DH angles theta [rad] -> controller angles A1..A6 [rad]."""
+        t = np.asarray(theta, dtype=float)
+        sign = np.array([j.controller_sign for j in self.joints])
+        offset = np.array([j.controller_offset for j in self.joints])
+        return (t - offset) / sign
+
+    def check_pose(self, q, field: str = "pose") -> np.ndarray:
+        """Return ``q`` (DH, rad) as an array, or raise naming the joint and its limits."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.dof,) or not np.all(np.isfinite(q)):
+            raise JointLimitError(f"{field} must be {self.dof} finite joint angles, got {q!r}")
+        for i, j in enumerate(self.joints):
+            if not (j.lower - 1e-12 <= q[i] <= j.upper + 1e-12):
+                ctrl = np.degrees(self.dh_to_controller(q))[i]
+                raise JointLimitError(
+                    f"{field}: {j.name} = {np.degrees(q[i]):.3f} deg (DH; controller {j.controller_name}"
+                    f" = {ctrl:.3f} deg) is outside its limits [{np.degrees(j.lower):.1f},"
+                    f" {np.degrees(j.upper):.1f}] deg (DH)"
+                )
+        return q
+
+    def random_pose(self, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
+        """A uniform random DH pose inside the limits shrunk by ``margin`` [rad] at each end."""
+        return rng.uniform(self.lower + margin, self.upper - margin)
+
+
+def available_robots() -> list[str]:
+    """Names of the robots under :data:`MODELS_DIR` (folders holding a robot.toml)."""
+    return sorted(p.parent.name for p in MODELS_DIR.glob("*/robot.toml"))
+
+
+def robot_dir(name: str) -> Path:
+    path = MODELS_DIR / name
+    if not (path / "robot.toml").is_file():
+        raise UnknownNameError("robot", name, available_robots())
+    return path
+
+
+_FIELDS = (
+    "name controller alpha_prev_deg a_prev_m d_m controller_sign controller_offset_deg "
+    "controller_limits_deg stiffness_true_Nm_per_rad damping_Nms_per_rad armature_kgm2 "
+    "mass_kg com_m inertia_diag_kgm2"
+).split()
+
+
+def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription:
+    missing = [f for f in _FIELDS if f not in table]
+    if missing:
+        raise ScenarioError(f"{source}: joints[{index}] lacks {', '.join(missing)}")
+    sign = float(table["controller_sign"])
+    if sign not in (1.0, -1.0):
+        raise ScenarioError(f"{source}: joints[{index}].controller_sign must be 1 or -1, got {sign}")
+    offset = np.radians(table["controller_offset_deg"])
+    lim = np.radians(table["controller_limits_deg"])
+    dh_lim = sorted(sign * lim + offset)
+    return JointDescription(
+        name=table["name"],
+        controller_name=table["controller"],
+        alpha_prev=float(np.radians(table["alpha_prev_deg"])),
+        a_prev=float(table["a_prev_m"]),
+        d=float(table["d_m"]),
+        controller_sign=sign,
+        controller_offset=float(offset),
+        lower=float(dh_lim[0]),
+        upper=float(dh_lim[1]),
+        stiffness_true=float(table["stiffness_true_Nm_per_rad"]),
+        damping=float(table["damping_Nms_per_rad"]),
+        armature=float(table["armature_kgm2"]),
+        mass=float(table["mass_kg"]),
+        com=tuple(float(x) for x in table["com_m"]),
+        inertia_diag=tuple(float(x) for x in table["inertia_diag_kgm2"]),
+    )
+
+
+def load_robot(name: str = "kuka_kr60_3") -> RobotDescription:
+    """Load ``models/<name>/robot.toml``; unknown names list the available robots."""
+    source = robot_dir(name) / "robot.toml"
+    data = tomllib.loads(source.read_text())
+    joints = tuple(_joint_from_table(t, i, source) for i, t in enumerate(data.get("joints", [])))
+    return RobotDescription(
+        name=data["name"],
+        display_name=data.get("display_name", data["name"]),
+        base_mass=float(data.get("base_mass_kg", 0.0)),
+        joints=joints,
+        source=source,
+    )
