@@ -15,7 +15,9 @@ COMMAND_MODULES = [
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vtestbed", description="A virtual lab for joint-stiffness identification.")
+    parser = argparse.ArgumentParser(
+        prog="vtestbed", description="A virtual lab for joint-stiffness identification."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)

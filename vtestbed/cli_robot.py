@@ -19,7 +19,9 @@ def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
     try:
         values = [float(x) for x in text.split(",")]
     except ValueError:
-        raise OutOfRangeError(f"{field} must be {count} comma-separated numbers in degrees, got {text!r}") from None
+        raise OutOfRangeError(
+            f"{field} must be {count} comma-separated numbers in degrees, got {text!r}"
+        ) from None
     if len(values) != count:
         raise OutOfRangeError(f"{field} must have {count} angles, got {len(values)}: {text!r}")
     return np.radians(values)
@@ -33,14 +35,20 @@ def pose_from_args(robot, args) -> np.ndarray:
 
 
 def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--q-deg", default=DEFAULT_POSE_DEG, help="DH joint angles in degrees (default %(default)s)")
-    parser.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)")
+    parser.add_argument(
+        "--q-deg", default=DEFAULT_POSE_DEG, help="DH joint angles in degrees (default %(default)s)"
+    )
+    parser.add_argument(
+        "--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)"
+    )
 
 
 def _cmd_robot(args) -> int:
     robot = load_robot(args.robot)
     print(f"{robot.display_name} ({robot.name}), {robot.dof} joints, total mass {robot.total_mass:.0f} kg")
-    print(f"{'joint':8}{'alpha[deg]':>11}{'a[mm]':>8}{'d[mm]':>8}{'limits DH [deg]':>20}{'k_true [N*mm/rad]':>20}")
+    print(
+        f"{'joint':8}{'alpha[deg]':>11}{'a[mm]':>8}{'d[mm]':>8}{'limits DH [deg]':>20}{'k_true [N*mm/rad]':>20}"
+    )
     for j in robot.joints:
         lim = f"[{np.degrees(j.lower):.0f}, {np.degrees(j.upper):.0f}]"
         print(
@@ -76,11 +84,17 @@ def _cmd_load(args) -> int:
     print(f"pose (DH) [deg]: {np.round(result['q_cmd_deg'], 3).tolist()}; wire {args.hook} -> {args.anchor}")
     print(f"wire tension {loaded.wire_tension:.3f} N; equilibrium residual {loaded.residual:.1e} N*m")
     print(f"{'joint':8}{'gravity defl [urad]':>22}{'wire defl [urad]':>20}")
-    for name, g, w in zip(robot.joint_names, result["deflection_gravity_urad"], result["deflection_wire_urad"]):
+    for name, g, w in zip(
+        robot.joint_names, result["deflection_gravity_urad"], result["deflection_wire_urad"]
+    ):
         print(f"{name:8}{g:22.3f}{w:20.3f}")
     print("F/T loaded   [N, N*m]:", np.array2string(loaded.sensor_wrench, precision=3))
-    print("block displacement, base frame: translation [mm]", np.round(disp[:3] * 1e3, 5).tolist(),
-          "rotation [mrad]", np.round(disp[3:] * 1e3, 5).tolist())
+    print(
+        "block displacement, base frame: translation [mm]",
+        np.round(disp[:3] * 1e3, 5).tolist(),
+        "rotation [mrad]",
+        np.round(disp[3:] * 1e3, 5).tolist(),
+    )
     return 0
 
 

@@ -26,9 +26,20 @@ def build_pinocchio_model(robot: RobotDescription) -> pin.Model:
     model.name = robot.name
     parent = 0
     for joint in robot.joints:
-        placement = pin.SE3(rot_x(joint.alpha_prev), np.array([joint.a_prev, 0.0, 0.0]) + rot_x(joint.alpha_prev) @ [0, 0, joint.d])
-        jid = model.addJoint(parent, pin.JointModelRZ(), placement, joint.name, np.full(1, np.inf),
-                             np.full(1, np.inf), np.array([joint.lower]), np.array([joint.upper]))
+        placement = pin.SE3(
+            rot_x(joint.alpha_prev),
+            np.array([joint.a_prev, 0.0, 0.0]) + rot_x(joint.alpha_prev) @ [0, 0, joint.d],
+        )
+        jid = model.addJoint(
+            parent,
+            pin.JointModelRZ(),
+            placement,
+            joint.name,
+            np.full(1, np.inf),
+            np.full(1, np.inf),
+            np.array([joint.lower]),
+            np.array([joint.upper]),
+        )
         inertia = pin.Inertia(joint.mass, np.array(joint.com), np.diag(joint.inertia_diag))
         model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
         parent = jid
@@ -91,7 +102,9 @@ class ArmKinematics:
             raise UnknownNameError("Jacobian frame", frame, ("base", "tool"))
         offset = self.tool_in_flange if tool_in_flange is None else np.asarray(tool_in_flange)
         self._update(q)
-        j_flange_local = pin.getJointJacobian(self.model, self.data, self._last_joint, pin.ReferenceFrame.LOCAL)
+        j_flange_local = pin.getJointJacobian(
+            self.model, self.data, self._last_joint, pin.ReferenceFrame.LOCAL
+        )
         tool = pin.SE3(offset[:3, :3], offset[:3, 3])
         j_tool_local = tool.inverse().action @ j_flange_local  # [v; w] of the tool in tool axes
         if frame == "tool":

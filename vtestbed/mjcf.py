@@ -166,14 +166,19 @@ def _add_tool(flange: mujoco.MjsBody, lab: LabSetup) -> None:
     for name, pos in block.hooks.items():
         tool.add_site(name=name, pos=block_in_tool + np.array(pos), size=[0.003, 0, 0], group=MARKER_GROUP)
     tool.add_site(
-        name=WIRE_HOOK_SITE, pos=block_in_tool + block.hook(default_hook), size=[0.003, 0, 0], group=MARKER_GROUP
+        name=WIRE_HOOK_SITE,
+        pos=block_in_tool + block.hook(default_hook),
+        size=[0.003, 0, 0],
+        group=MARKER_GROUP,
     )
 
 
 def _add_table_and_wire(spec: mujoco.MjSpec, lab: LabSetup) -> None:
     table, wire = lab.table, lab.wire
     world = spec.worldbody
-    _visual_geom(world, name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[5.0, 5.0, 0.05], rgba=[0.4, 0.45, 0.4, 1])
+    _visual_geom(
+        world, name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[5.0, 5.0, 0.05], rgba=[0.4, 0.45, 0.4, 1]
+    )
     _visual_geom(
         world,
         name="table_top",
@@ -196,7 +201,10 @@ def _add_table_and_wire(spec: mujoco.MjSpec, lab: LabSetup) -> None:
     # The tendon is not a geom: a mocap capsule stands in for the wire so scans see it.
     visual = world.add_body(name=WIRE_VISUAL_BODY, mocap=True, pos=[0, 0, -10.0])
     _visual_geom(
-        visual, name="wire_geom", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[wire.diameter / 2, 3.0, 0.0],
+        visual,
+        name="wire_geom",
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        size=[wire.diameter / 2, 3.0, 0.0],
         rgba=[0.2, 0.2, 0.2, 1.0],
     )
 
@@ -213,7 +221,10 @@ def build_scene_spec(
     flange = _add_robot(spec, robot)
     _add_tool(flange, lab)
     _add_table_and_wire(spec, lab)
-    for kind, suffix in ((mujoco.mjtSensor.mjSENS_FORCE, "force"), (mujoco.mjtSensor.mjSENS_TORQUE, "torque")):
+    for kind, suffix in (
+        (mujoco.mjtSensor.mjSENS_FORCE, "force"),
+        (mujoco.mjtSensor.mjSENS_TORQUE, "torque"),
+    ):
         spec.add_sensor(name=f"ft_{suffix}", type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=SENSOR_SITE)
     for effect in effects:
         effect.apply(spec, robot, lab)

@@ -19,9 +19,10 @@ import mujoco
 import numpy as np
 
 from . import mjcf
-from .errors import ConvergenceError, OutOfRangeError, SensorOverloadError
+from .errors import ConvergenceError, OutOfRangeError
 from .lab import LabSetup
 from .robots import RobotDescription, load_robot
+from .sensors import check_wrench_range
 from .transforms import homogeneous, quat_wxyz
 
 RESIDUAL_TOL = 1e-9  # N*m; the floor is about ulp(q) * k = 4e-11 N*m
@@ -114,7 +115,11 @@ class Rig:
         self._q_guess = self.model.qpos_spring.copy()
 
     def hook(self, hook: str | None = None, anchor: str | None = None) -> None:
-        """Attach the wire between a block hook and a table ring (names checked)."""
+        """Attach the wire between a block hook and a table ring (names checked).
+
+        Re-hooking leaves the wire slack, as an operator unhooks it first.
+        """
+        self.slacken_wire()
         if hook is not None:
             pos = self.lab.block.hook(hook)
             block_in_tool = self.lab.block_in_flange[:3, 3] - self.lab.sensor.origin_in_flange
@@ -226,15 +231,11 @@ class Rig:
         return self._state_at(rest_length).wire_tension
 
     def _check_sensor_range(self, state: RigState) -> None:
-        names = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
-        units = ("N",) * 3 + ("N*m",) * 3
-        for name, value, limit, unit in zip(names, state.sensor_wrench, self.lab.sensor.wrench_range, units):
-            if abs(value) > limit:
-                raise SensorOverloadError(
-                    f"force sensor overload: {name} = {value:.1f} {unit} is outside the range "
-                    f"[-{limit:g}, {limit:g}] {unit} of the {self.lab.sensor.name} (wire tension "
-                    f"{state.wire_tension:.1f} N, hook {self.hook_name}, anchor {self.anchor_name})"
-                )
+        context = (
+            f"sensor wrench at wire tension {state.wire_tension:.1f} N "
+            f"(hook {self.hook_name}, anchor {self.anchor_name})"
+        )
+        check_wrench_range(state.sensor_wrench, self.lab.sensor, context)
 
     def settle(self, duration: float = 3.0, q_start=None) -> RigState:
         """Damped dynamic settle with mj_step from ``q_start`` (default: the commanded pose).

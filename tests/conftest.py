@@ -1,0 +1,20 @@
+import numpy as np
+import pytest
+
+from vtestbed.lab import LabSetup
+from vtestbed.robots import load_robot
+
+
+@pytest.fixture(scope="session")
+def robot():
+    return load_robot("kuka_kr60_3")
+
+
+@pytest.fixture(scope="session")
+def lab():
+    return LabSetup()
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20231)
