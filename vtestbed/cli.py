@@ -11,6 +11,7 @@ from .errors import VtestbedError
 # Modules with a ``register(subparsers)`` function; each adds its own subcommands.
 COMMAND_MODULES = [
     "vtestbed.cli_robot",
+    "vtestbed.cli_experiment",
 ]
 
 

@@ -108,8 +108,12 @@ class Rig:
 
     # ------------------------------------------------------------------ commands
     def command(self, q_cmd) -> None:
-        """Command a DH pose [rad]: the joint springs' reference. Checks the joint limits."""
+        """Command a DH pose [rad]: the joint springs' reference. Checks the joint limits.
+
+        The wire is slackened first, as an operator releases it before the robot moves.
+        """
         q_cmd = self.robot.check_pose(q_cmd, field="commanded pose")
+        self.slacken_wire()
         self._q_cmd = q_cmd.copy()
         self.model.qpos_spring[self._joint_qpos] = q_cmd
         self._q_guess = self.model.qpos_spring.copy()
@@ -180,8 +184,13 @@ class Rig:
                     dq[k] += step
                     jac[:, k] = (self._residual(dq) - r) / step
                 self._residual(q)
-            q = q - np.linalg.solve(jac, r)
+            try:
+                q = q - np.linalg.solve(jac, r)
+            except np.linalg.LinAlgError:
+                break
             r = self._residual(q)
+            if not np.all(np.isfinite(r)):
+                break
         raise ConvergenceError(
             f"static equilibrium did not converge in {max_iterations} iterations: residual "
             f"{np.max(np.abs(r)):.3e} N*m > tolerance {tol:.1e} N*m"

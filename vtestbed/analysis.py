@@ -1,0 +1,124 @@
+"""The researcher's side: from a measurement dataset to joint stiffness.
+
+Everything here reads only the dataset (setup.json, tests.csv, the PLY clouds) and the robot's
+nominal kinematics, never the truth, so it runs unchanged on a dataset recorded in a real lab.
+
+Frames: the identification works in the block frame B at the commanded pose. The displacement
+of B's origin is ``[R0^T (o1 - o0); rotvec(R0^T R1)]`` from the two fitted frames (so no
+scanner-to-robot calibration is needed), the wrench change (loaded minus unloaded, which
+cancels the block's weight and the sensor bias) is moved from the sensor origin to B's origin
+and into B's axes, and the Jacobian is the geometric Jacobian of B in B's axes at the
+commanded pose.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import cloud
+from .dataset import DatasetSetup, TestRecord, read_setup, read_tests
+from .errors import DatasetError, ScanError, VtestbedError
+from .identify import IdentificationResult, identify
+from .kinematics import ArmKinematics
+from .robots import load_robot
+from .transforms import invert, rotation_vector
+
+
+@dataclass(frozen=True)
+class TestMeasurement:
+    """One test reduced to what the identification needs (block frame, SI)."""
+
+    test_id: str
+    group: str
+    q: np.ndarray  # (n,) commanded DH angles [rad]
+    wrench: np.ndarray  # (6,) external wrench change at B's origin, B axes [N, N*m]
+    displacement: np.ndarray  # (6,) B's displacement in B axes [m, rad]
+    jacobian: np.ndarray  # (6, n) at B, B axes, commanded pose
+    frame_unloaded: np.ndarray  # (4, 4) fitted block frame in the scanner frame
+    frame_loaded: np.ndarray  # (4, 4)
+
+
+def wrench_at_block(wrench_sensor: np.ndarray, setup: DatasetSetup) -> np.ndarray:
+    """Move a wrench (6,) from the sensor origin/axes to the block origin/axes."""
+    sensor_in_block = invert(setup.block_in_flange) @ setup.sensor_in_flange
+    rot, origin = sensor_in_block[:3, :3], sensor_in_block[:3, 3]
+    force = rot @ wrench_sensor[:3]
+    torque = rot @ wrench_sensor[3:] + np.cross(origin, force)
+    return np.concatenate([force, torque])
+
+
+def displacement_in_block_frame(frame_unloaded: np.ndarray, frame_loaded: np.ndarray) -> np.ndarray:
+    """Small displacement of the block frame, in the unloaded block frame's axes (6,) [m, rad]."""
+    rot0 = frame_unloaded[:3, :3]
+    trans = rot0.T @ (frame_loaded[:3, 3] - frame_unloaded[:3, 3])
+    return np.concatenate([trans, rotation_vector(rot0.T @ frame_loaded[:3, :3])])
+
+
+def commanded_pose(record: TestRecord, setup: DatasetSetup, robot) -> np.ndarray:
+    q = np.radians(record.q_deg)
+    return robot.controller_to_dh(q) if setup.angle_convention == "controller" else q
+
+
+def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
+    """Fit both clouds of one test and build its wrench, displacement and Jacobian."""
+    frames = []
+    for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
+        try:
+            frames.append(cloud.fit_block_frame(cloud.read_ply(path)).pose)
+        except VtestbedError as exc:
+            raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
+    q = commanded_pose(record, setup, kin.robot)
+    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
+    return TestMeasurement(
+        test_id=record.test_id,
+        group=record.group,
+        q=q,
+        wrench=wrench_at_block(record.wrench_loaded - record.wrench_unloaded, setup),
+        displacement=displacement_in_block_frame(*frames),
+        jacobian=kin.jacobian(q, setup.block_in_flange, frame="tool"),
+        frame_unloaded=frames[0],
+        frame_loaded=frames[1],
+    )
+
+
+def load_measurements(root: str | Path, progress: Callable[[int, int], None] | None = None):
+    """Read and reduce a dataset: returns (setup, list of TestMeasurement)."""
+    root = Path(root)
+    setup = read_setup(root)
+    records = read_tests(root, check_files=True, sensor_range=setup.sensor_range)
+    if not records:
+        raise DatasetError(f"{root / 'tests.csv'} holds no tests")
+    robot = load_robot(setup.robot)
+    kin = ArmKinematics(robot, setup.block_in_flange)
+    out = []
+    for i, record in enumerate(records):
+        out.append(measure_test(record, setup, kin))
+        if progress:
+            progress(i + 1, len(records))
+    return setup, out
+
+
+def identify_measurements(
+    measurements: list[TestMeasurement], method: str = "fgls", joint_names=None
+) -> IdentificationResult:
+    """Identify from the ``identification`` group of reduced tests."""
+    tests = [m for m in measurements if m.group == "identification"]
+    if not tests:
+        raise DatasetError("the dataset has no test in group 'identification'")
+    return identify(
+        np.array([m.jacobian for m in tests]),
+        np.array([m.wrench for m in tests]),
+        np.array([m.displacement for m in tests]),
+        method=method,
+        joint_names=joint_names,
+    )
+
+
+def predict_displacement(measurement: TestMeasurement, stiffness: np.ndarray) -> np.ndarray:
+    """The model's displacement J K^-1 J^T F (6,) for one test, given stiffness [N*m/rad]."""
+    jac = measurement.jacobian
+    return jac @ ((jac.T @ measurement.wrench) / np.asarray(stiffness))

@@ -1,0 +1,111 @@
+"""``vtestbed simulate | identify | run | demo``: the virtual experiment end to end."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def _print_run(summary: dict, out: Path) -> None:
+    print(
+        f"\n{summary['scenario']}: {summary['n_tests']} tests, method {summary['method']}, seed {summary['seed']}"
+    )
+    print(summary["table"])
+    for note in summary["identification"]["warnings"]:
+        print(f"warning: {note}")
+    if summary["validation"]:
+        errs = [max(v["rel_err_translation"], v["rel_err_rotation"]) for v in summary["validation"]]
+        print(f"validation poses: worst relative displacement error {max(errs) * 100:.2f} %")
+    t = summary["timings_s"]
+    print("time [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
+    print(f"wrote {out / 'result.json'}" + "".join(f", {p}" for p in summary["figures"].values()))
+
+
+def _cmd_simulate(args) -> int:
+    from .experiment import simulate
+    from .scenario import load_scenario
+
+    out = simulate(load_scenario(args.scenario), args.out, progress=not args.quiet)
+    print(f"dataset written to {out}")
+    return 0
+
+
+def _cmd_identify(args) -> int:
+    from . import report
+    from .dataset import read_truth
+    from .experiment import identify_dataset
+
+    setup, measurements, result = identify_dataset(args.dataset, args.method, progress=not args.quiet)
+    out = {"dataset": str(args.dataset), **result.as_dict()}
+    truth = None if args.no_truth else read_truth(args.dataset)
+    if truth is not None:
+        out["joints"] = report.compare(result, truth)
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    print(
+        f"{'joint':8}{'k_est [N*mm/rad]':>18}{'k_std':>12}{'k_std/k [%]':>12}"
+        + (f"{'rel_err [%]':>12}" if truth else "")
+    )
+    for i, name in enumerate(result.joint_names):
+        line = (
+            f"{name:8}{result.stiffness[i] * 1e3:18.4e}{result.stiffness_std[i] * 1e3:12.2e}"
+            f"{result.stiffness_std[i] / result.stiffness[i] * 100:12.3f}"
+        )
+        if truth:
+            line += f"{out['joints'][i]['rel_err'] * 100:12.3f}"
+        print(line)
+    print(f"condition number {result.condition_number:.3g}, reduced chi^2 {result.chi2_reduced:.3g}")
+    for note in result.warnings:
+        print(f"warning: {note}")
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from .experiment import run
+    from .scenario import load_scenario
+
+    out = Path(args.out)
+    summary = run(load_scenario(args.scenario), out, progress=not args.quiet, figures=not args.no_figures)
+    _print_run(summary, out)
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    args.scenario = SCENARIOS_DIR / "kr60_paper.toml"
+    args.no_figures = False
+    return _cmd_run(args)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("simulate", help="run a scenario in the virtual lab and write a measurement dataset")
+    p.add_argument("scenario", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify joint stiffness from a dataset (simulated or from a lab)")
+    p.add_argument("dataset", type=Path)
+    p.add_argument("--method", default="fgls", choices=("ols", "fgls"))
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--no-truth", action="store_true", help="do not compare with truth.json even if present")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_identify)
+
+    p = sub.add_parser(
+        "run", help="simulate + identify + compare with the truth; writes result.json and figures"
+    )
+    p.add_argument("scenario", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("demo", help="run the paper's scenario (scenarios/kr60_paper.toml)")
+    p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_demo)
+
+

@@ -1,0 +1,249 @@
+"""Measurement datasets: what a lab records, in files a person can fill in by hand.
+
+A dataset is a folder::
+
+    setup.json     robot, angle convention, sensor mounting, block geometry (see DatasetSetup)
+    tests.csv      one row per test: commanded pose, F/T readings unloaded and loaded, the two
+                   point-cloud files; column ``group`` is ``identification`` or ``validation``
+    clouds/*.ply   the scans, in the scanner frame, metres
+    truth.json     only in simulated datasets; identification never reads it
+
+Units are in the column names (deg, N, Nm). Rows are appended as each test finishes, so an
+interrupted simulation keeps every finished test.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DatasetError, SensorOverloadError
+from .lab import ForceSensorSpec
+from .sensors import AXES, check_wrench_range
+
+FORMAT = "vtestbed-dataset/1"
+SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"
+GROUPS = ("identification", "validation")
+_UNIT = {"F": "N", "T": "Nm"}
+
+
+def wrench_columns(prefix: str) -> list[str]:
+    return [f"{prefix}_{axis}_{_UNIT[axis[0]]}" for axis in AXES]
+
+
+def pose_columns(dof: int = 6) -> list[str]:
+    return [f"q{i + 1}_deg" for i in range(dof)]
+
+
+COLUMNS = [
+    "test_id",
+    "group",
+    *pose_columns(),
+    *wrench_columns("unloaded"),
+    *wrench_columns("loaded"),
+    "cloud_unloaded",
+    "cloud_loaded",
+]
+
+
+@dataclass(frozen=True)
+class DatasetSetup:
+    """The fixed part of an experiment (SI; 4x4 poses in the flange frame)."""
+
+    robot: str
+    angle_convention: str  # "dh" or "controller": how q*_deg in tests.csv are meant
+    block_in_flange: np.ndarray  # (4, 4) block frame B (origin: the scanned corner)
+    sensor_in_flange: np.ndarray  # (4, 4) force sensor measurement frame
+    block_edge: float  # m
+    sensor_name: str
+    sensor_range: tuple[float, ...]  # |Fx|,|Fy|,|Fz| [N], |Tx|,|Ty|,|Tz| [N*m]
+    notes: str = ""
+
+    def to_json(self) -> dict:
+        return {
+            "format": FORMAT,
+            "robot": self.robot,
+            "angle_convention": self.angle_convention,
+            "block_in_flange": np.asarray(self.block_in_flange).tolist(),
+            "sensor_in_flange": np.asarray(self.sensor_in_flange).tolist(),
+            "block_edge_m": self.block_edge,
+            "force_sensor": {"name": self.sensor_name, "range_N_Nm": list(self.sensor_range)},
+            "notes": self.notes,
+        }
+
+    @property
+    def sensor_spec(self) -> ForceSensorSpec:
+        return ForceSensorSpec(name=self.sensor_name, wrench_range=tuple(self.sensor_range))
+
+
+@dataclass(frozen=True)
+class TestRecord:
+    """One test as recorded: pose (in the setup's convention, deg), readings, cloud paths."""
+
+    test_id: str
+    group: str
+    q_deg: np.ndarray  # (6,)
+    wrench_unloaded: np.ndarray  # (6,) N, N*m in the sensor frame
+    wrench_loaded: np.ndarray  # (6,)
+    cloud_unloaded: Path
+    cloud_loaded: Path
+
+    def row(self, root: Path) -> list:
+        rel = [
+            str(p.relative_to(root)) if p.is_absolute() else str(p)
+            for p in (self.cloud_unloaded, self.cloud_loaded)
+        ]
+        return [
+            self.test_id,
+            self.group,
+            *[f"{v:.12g}" for v in self.q_deg],
+            *[f"{v:.12g}" for v in self.wrench_unloaded],
+            *[f"{v:.12g}" for v in self.wrench_loaded],
+            *rel,
+        ]
+
+
+def _read_json(path: Path, what: str) -> dict:
+    if not path.is_file():
+        raise DatasetError(f"{what} {path} is missing")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: not valid JSON: {exc}") from None
+
+
+def _matrix(value, path: Path, name: str) -> np.ndarray:
+    m = np.asarray(value, dtype=float)
+    if (
+        m.shape != (4, 4)
+        or not np.allclose(m[3], [0, 0, 0, 1])
+        or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)
+    ):
+        raise DatasetError(f"{path}: {name} must be a 4x4 rigid transform, got {value!r}")
+    return m
+
+
+def read_setup(root: str | Path) -> DatasetSetup:
+    root = Path(root)
+    path = root / SETUP_FILE
+    data = _read_json(path, "dataset setup file")
+    for key in (
+        "robot",
+        "angle_convention",
+        "block_in_flange",
+        "sensor_in_flange",
+        "block_edge_m",
+        "force_sensor",
+    ):
+        if key not in data:
+            raise DatasetError(f"{path}: key {key!r} is missing")
+    if data["angle_convention"] not in ("dh", "controller"):
+        raise DatasetError(
+            f"{path}: angle_convention must be 'dh' or 'controller', got {data['angle_convention']!r}"
+        )
+    rng = data["force_sensor"].get("range_N_Nm")
+    if not isinstance(rng, list) or len(rng) != 6:
+        raise DatasetError(f"{path}: force_sensor.range_N_Nm must be 6 numbers (Fx..Tz)")
+    return DatasetSetup(
+        robot=data["robot"],
+        angle_convention=data["angle_convention"],
+        block_in_flange=_matrix(data["block_in_flange"], path, "block_in_flange"),
+        sensor_in_flange=_matrix(data["sensor_in_flange"], path, "sensor_in_flange"),
+        block_edge=float(data["block_edge_m"]),
+        sensor_name=str(data["force_sensor"].get("name", "force sensor")),
+        sensor_range=tuple(float(v) for v in rng),
+        notes=str(data.get("notes", "")),
+    )
+
+
+def write_setup(root: str | Path, setup: DatasetSetup) -> None:
+    root = Path(root)
+    (root / CLOUD_DIR).mkdir(parents=True, exist_ok=True)
+    (root / SETUP_FILE).write_text(json.dumps(setup.to_json(), indent=2))
+
+
+class TestWriter:
+    """Appends finished tests to tests.csv (flushed per row, so an interruption keeps them)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.path = self.root / TESTS_FILE
+        self.done = (
+            {r.test_id for r in read_tests(self.root, check_files=False)} if self.path.exists() else set()
+        )
+        new = not self.path.exists()
+        self._file = self.path.open("a", newline="")
+        self._csv = csv.writer(self._file)
+        if new:
+            self._csv.writerow(COLUMNS)
+            self._file.flush()
+
+    def append(self, record: TestRecord) -> None:
+        self._csv.writerow(record.row(self.root))
+        self._file.flush()
+        self.done.add(record.test_id)
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) -> list[TestRecord]:
+    """Read tests.csv; with ``check_files`` every referenced cloud must exist."""
+    root = Path(root)
+    path = root / TESTS_FILE
+    if not path.is_file():
+        raise DatasetError(f"tests file {path} is missing")
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DatasetError(f"{path}: columns missing: {', '.join(missing)}")
+        rows = list(reader)
+    records = []
+    for line, row in enumerate(rows, start=2):
+        where = f"{path} line {line} (test {row.get('test_id')!r})"
+        try:
+            q = np.array([float(row[c]) for c in pose_columns()])
+            wu = np.array([float(row[c]) for c in wrench_columns("unloaded")])
+            wl = np.array([float(row[c]) for c in wrench_columns("loaded")])
+        except (TypeError, ValueError):
+            raise DatasetError(f"{where}: pose and wrench columns must be numbers") from None
+        if row["group"] not in GROUPS:
+            raise DatasetError(f"{where}: group must be one of {', '.join(GROUPS)}, got {row['group']!r}")
+        if sensor_range is not None:
+            spec = ForceSensorSpec(wrench_range=tuple(sensor_range))
+            for label, w in (("unloaded", wu), ("loaded", wl)):
+                try:
+                    check_wrench_range(w, spec, f"{where}: {label} wrench")
+                except SensorOverloadError as exc:
+                    raise DatasetError(str(exc)) from None
+        clouds = (root / row["cloud_unloaded"], root / row["cloud_loaded"])
+        if check_files:
+            for c in clouds:
+                if not c.is_file():
+                    n_ply = len(list((root / CLOUD_DIR).glob("*.ply")))
+                    raise DatasetError(
+                        f"{where}: point cloud {c} is missing ({len(rows)} tests need {2 * len(rows)} clouds, "
+                        f"{n_ply} found in {root / CLOUD_DIR})"
+                    )
+        records.append(TestRecord(row["test_id"], row["group"], q, wu, wl, *clouds))
+    ids = [r.test_id for r in records]
+    if len(set(ids)) != len(ids):
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        raise DatasetError(f"{path}: duplicate test ids {dup}")
+    return records
+
+
+def read_truth(root: str | Path) -> dict | None:
+    path = Path(root) / TRUTH_FILE
+    return json.loads(path.read_text()) if path.is_file() else None
