@@ -12,6 +12,7 @@ from .errors import VtestbedError
 COMMAND_MODULES = [
     "vtestbed.cli_robot",
     "vtestbed.cli_experiment",
+    "vtestbed.cli_scan",
 ]
 
 

@@ -1,0 +1,145 @@
+"""``vtestbed scan``: scan the block unloaded and loaded, fit both clouds, compare with the truth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from .cli_robot import add_pose_arguments, pose_from_args
+from .errors import OutOfRangeError
+
+DEFAULT_VIEW = "1,1,1"
+
+
+def _parse_view(text: str) -> np.ndarray:
+    try:
+        view = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise OutOfRangeError(
+            f"--view must be 3 comma-separated numbers (a direction in the block frame), got {text!r}"
+        ) from None
+    if view.shape != (3,):
+        raise OutOfRangeError(f"--view must have 3 components, got {len(view)}: {text!r}")
+    return view
+
+
+def _cmd_scan(args) -> int:
+    from . import cloud
+    from .kinematics import ArmKinematics
+    from .rig import Rig
+    from .robots import load_robot
+    from .scanner import Scanner, ScanNoise
+    from .transforms import displacement, invert
+
+    robot = load_robot(args.robot)
+    rig = Rig(robot)
+    q_cmd = pose_from_args(robot, args)
+    rig.command(q_cmd)
+    rig.hook(args.hook, args.anchor)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    noise = ScanNoise.perfect() if args.noise_free else ScanNoise()
+    rng = np.random.default_rng(args.seed)
+
+    s0 = rig.solve()
+    scanner = Scanner.place(
+        rig.lab,
+        s0.block_pose,
+        distance_m=args.distance_mm * 1e-3,
+        view_direction_block=_parse_view(args.view),
+        point_spacing_m=args.spacing_mm * 1e-3,
+    )
+    cloud0 = scanner.scan(rig.model, rig.data, rng, noise)
+    s1 = rig.tighten(args.tension)
+    cloud1 = scanner.scan(rig.model, rig.data, rng, noise)
+    cloud.write_ply(out / "unloaded.ply", cloud0)
+    cloud.write_ply(out / "loaded.ply", cloud1)
+
+    # The researcher's side: nominal block pose from the kinematic model and the scanner's pose.
+    kin = ArmKinematics(robot, rig.lab.block_in_flange)
+    nominal = invert(scanner.pose_world) @ kin.tool_pose(q_cmd)
+    params = cloud.FitParams(edge_m=rig.lab.block.edge)
+    f0 = cloud.fit_block_frame(cloud0, nominal, params, rng)
+    f1 = cloud.fit_block_frame(cloud1, f0, params, rng)
+    measured = cloud.block_displacement(f0, f1, scanner.pose_world)
+    true = displacement(s0.block_pose, s1.block_pose)
+    to_s = invert(scanner.pose_world)
+    result = {
+        "units": "translation of the block reference point (frame B origin) [m], then rotation vector [rad]",
+        "frame": "robot base",
+        "displacement_measured": measured.tolist(),
+        "displacement_true": true.tolist(),
+        "displacement_error": (measured - true).tolist(),
+        "displacement_measured_scanner": cloud.displacement_in_scanner(f0, f1).tolist(),
+        "displacement_true_scanner": displacement(to_s @ s0.block_pose, to_s @ s1.block_pose).tolist(),
+        "paper_T_O1_O0inv_measured": {
+            "note": "paper Sec. 4.2: [dx, dy, dz] of T = O1 O0^-1 in the scanner frame (motion of the "
+            "scanner origin, not of the block) [m], then gamma, beta, alpha about x, y, z [rad]",
+            "values": cloud.paper_displacement(f0, f1).tolist(),
+        },
+        "pose": {"q_cmd_dh_deg": np.degrees(q_cmd).tolist(), "hook": args.hook, "anchor": args.anchor},
+        "wire_tension_N": s1.wire_tension,
+        "scanner": {
+            "pose_world": scanner.pose_world.tolist(),
+            "standoff_m": scanner.standoff_m,
+            "area_m": list(scanner.area_m),
+            "depth_m": scanner.depth_m,
+            "point_spacing_m": scanner.point_spacing_m,
+            "window": list(scanner.window) if scanner.window else None,
+        },
+        "noise": asdict(noise),
+        "seed": args.seed,
+        "clouds": {"unloaded": "unloaded.ply", "loaded": "loaded.ply", "points": [len(cloud0), len(cloud1)]},
+        "fit": {
+            name: {
+                "pose_scanner": f.pose.tolist(),
+                "points_per_face": f.counts.tolist(),
+                "rms_residual_m": f.rms_residual_m.tolist(),
+                "skew_rad": f.skew_rad,
+                "outliers_removed": f.n_outliers_removed,
+            }
+            for name, f in (("unloaded", f0), ("loaded", f1))
+        },
+    }
+    (out / "scan.json").write_text(json.dumps(result, indent=2))
+    print(
+        f"scanner {scanner.spec.name} at {args.distance_mm:g} mm, spacing {args.spacing_mm:g} mm, "
+        f"{'noise-free' if args.noise_free else f'noise seed {args.seed}'}; clouds of {len(cloud0)} and "
+        f"{len(cloud1)} points in {out}"
+    )
+    print(f"block displacement, robot base frame ({args.hook} -> {args.anchor}, {s1.wire_tension:.1f} N):")
+    print(f"{'':8}{'measured':>14}{'true':>14}{'error':>12}")
+    for i, name in enumerate(("dx [um]", "dy [um]", "dz [um]", "rx [urad]", "ry [urad]", "rz [urad]")):
+        m, t = measured[i] * 1e6, true[i] * 1e6
+        print(f"{name:10}{m:12.3f}{t:14.3f}{m - t:12.3f}")
+    print(f"wrote {out / 'scan.json'}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("scan", help="scan the block unloaded and loaded; measured vs true displacement")
+    p.add_argument("--out", required=True, help="output folder for the PLY clouds and scan.json")
+    p.add_argument("--robot", default="kuka_kr60_3")
+    add_pose_arguments(p)
+    p.add_argument("--tension", type=float, default=200.0, help="wire tension in N (default %(default)s)")
+    p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
+    p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
+    p.add_argument(
+        "--distance-mm", type=float, default=600.0, help="scanner to block centre (default %(default)s)"
+    )
+    p.add_argument(
+        "--view",
+        default=DEFAULT_VIEW,
+        help="direction block centre -> scanner in the block frame (default %(default)s)",
+    )
+    p.add_argument(
+        "--spacing-mm", type=float, default=0.5, help="point spacing at the block (default %(default)s)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default %(default)s)")
+    p.add_argument(
+        "--noise-free", action="store_true", help="a perfect scanner (no noise, outliers or drift)"
+    )
+    p.set_defaults(func=_cmd_scan)
