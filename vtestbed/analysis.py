@@ -65,14 +65,21 @@ def commanded_pose(record: TestRecord, setup: DatasetSetup, robot) -> np.ndarray
 
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
     """Fit both clouds of one test and build its wrench, displacement and Jacobian."""
+    q = commanded_pose(record, setup, kin.robot)
+    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
+    # Where the block should be in the scanner frame, from the rough scanner pose and the
+    # nominal kinematics: enough to crop the clutter. The loaded scan starts from the
+    # unloaded fit (the block moves by less than a millimetre).
+    nominal = invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
+    params = cloud.FitParams(edge_m=setup.block_edge)
     frames = []
     for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
         try:
-            frames.append(cloud.fit_block_frame(cloud.read_ply(path)).pose)
+            fit = cloud.fit_block_frame(cloud.read_ply(path), nominal, params)
         except VtestbedError as exc:
             raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
-    q = commanded_pose(record, setup, kin.robot)
-    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
+        frames.append(fit.pose)
+        nominal = fit.pose
     return TestMeasurement(
         test_id=record.test_id,
         group=record.group,

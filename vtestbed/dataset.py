@@ -24,6 +24,7 @@ import numpy as np
 from .errors import DatasetError, SensorOverloadError
 from .lab import ForceSensorSpec
 from .sensors import AXES, check_wrench_range
+from .transforms import homogeneous, matrix_from_rotation_vector, rotation_vector
 
 FORMAT = "vtestbed-dataset/1"
 SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"
@@ -39,12 +40,16 @@ def pose_columns(dof: int = 6) -> list[str]:
     return [f"q{i + 1}_deg" for i in range(dof)]
 
 
+# The scanner's pose in the robot base frame (position, rotation vector): it only needs to be
+# good to about 1 cm and 10 deg, enough to find the block in the cloud (a rough calibration).
+SCANNER_COLUMNS = ["scanner_x_m", "scanner_y_m", "scanner_z_m", "scanner_rx_rad", "scanner_ry_rad", "scanner_rz_rad"]
 COLUMNS = [
     "test_id",
     "group",
     *pose_columns(),
     *wrench_columns("unloaded"),
     *wrench_columns("loaded"),
+    *SCANNER_COLUMNS,
     "cloud_unloaded",
     "cloud_loaded",
 ]
@@ -89,6 +94,7 @@ class TestRecord:
     q_deg: np.ndarray  # (6,)
     wrench_unloaded: np.ndarray  # (6,) N, N*m in the sensor frame
     wrench_loaded: np.ndarray  # (6,)
+    scanner_pose: np.ndarray  # (4, 4) approximate pose of the scanner in the base frame
     cloud_unloaded: Path
     cloud_loaded: Path
 
@@ -97,14 +103,9 @@ class TestRecord:
             str(p.relative_to(root)) if p.is_absolute() else str(p)
             for p in (self.cloud_unloaded, self.cloud_loaded)
         ]
-        return [
-            self.test_id,
-            self.group,
-            *[f"{v:.12g}" for v in self.q_deg],
-            *[f"{v:.12g}" for v in self.wrench_unloaded],
-            *[f"{v:.12g}" for v in self.wrench_loaded],
-            *rel,
-        ]
+        scanner = [*self.scanner_pose[:3, 3], *rotation_vector(self.scanner_pose[:3, :3])]
+        numbers = [*self.q_deg, *self.wrench_unloaded, *self.wrench_loaded, *scanner]
+        return [self.test_id, self.group, *[f"{v:.15g}" for v in numbers], *rel]
 
 
 def _read_json(path: Path, what: str) -> dict:
@@ -216,8 +217,9 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
             q = np.array([float(row[c]) for c in pose_columns()])
             wu = np.array([float(row[c]) for c in wrench_columns("unloaded")])
             wl = np.array([float(row[c]) for c in wrench_columns("loaded")])
+            sc = np.array([float(row[c]) for c in SCANNER_COLUMNS])
         except (TypeError, ValueError):
-            raise DatasetError(f"{where}: pose and wrench columns must be numbers") from None
+            raise DatasetError(f"{where}: pose, wrench and scanner columns must be numbers") from None
         if row["group"] not in GROUPS:
             raise DatasetError(f"{where}: group must be one of {', '.join(GROUPS)}, got {row['group']!r}")
         if sensor_range is not None:
@@ -236,7 +238,10 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
                         f"{where}: point cloud {c} is missing ({len(rows)} tests need {2 * len(rows)} clouds, "
                         f"{n_ply} found in {root / CLOUD_DIR})"
                     )
-        records.append(TestRecord(row["test_id"], row["group"], q, wu, wl, *clouds))
+        if not np.all(np.isfinite(np.concatenate([q, wu, wl, sc]))):
+            raise DatasetError(f"{where}: pose, wrench and scanner columns must be finite numbers")
+        scanner_pose = homogeneous(matrix_from_rotation_vector(sc[3:]), sc[:3])
+        records.append(TestRecord(row["test_id"], row["group"], q, wu, wl, scanner_pose, *clouds))
     ids = [r.test_id for r in records]
     if len(set(ids)) != len(ids):
         dup = sorted({i for i in ids if ids.count(i) > 1})

@@ -24,8 +24,7 @@ from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter
 from .errors import DatasetError
 from .lab import LabSetup
 from .rig import Rig, RigState
-from .scan_noise import ScanNoise
-from .scanner import Scanner
+from .scanner import Scanner, ScanNoise
 from .scenario import Scenario
 from .sensors import ForceTorqueSensor
 from .transforms import rotation_vector
@@ -167,7 +166,7 @@ def simulate(
                 }
                 _write_json_atomic(out / TRUTH_FILE, truth)
                 # the row is written last: it marks the test as finished
-                writer.append(TestRecord(test_id, group, np.degrees(q), w0, w1, *paths))
+                writer.append(TestRecord(test_id, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
                 t5 = time.perf_counter()
                 timings.physics += (t1 - t0) + (t3 - t2)
                 timings.scan += (t2 - t1) + (t4 - t3)

@@ -168,7 +168,10 @@ def identify(
             res = (d_flat - a @ c).reshape(n_tests, 6)
             dof_share = max(n_tests - n / 6.0, 1.0)  # n parameters spread over 6 components
             comp_std = np.sqrt(np.sum(res**2, axis=0) / dof_share)
-            comp_std = np.maximum(comp_std, 1e-300)
+            if 6 * n_tests <= n or not np.any(comp_std > 0):
+                comp_std = np.ones(6)  # an exact fit carries no information on the noise
+                break
+            comp_std = np.maximum(comp_std, 1e-9 * comp_std.max())
     # Condition number of the joints' contributions to the (weighted) displacements: a joint
     # whose torque is small in every test contributes little and makes this large.
     contrib = (whiten @ a) * np.abs(c)[None, :]

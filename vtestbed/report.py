@@ -154,7 +154,7 @@ def plot_validation(rows: list[dict], path: Path) -> Path:
         twin.plot(x, [r[key] * 100 for r in rows], "r.-", label="relative error")
         twin.set_ylabel("relative error [%]", color="r")
         ax.set_title("translation" if unit == "mm" else "rotation")
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=7, loc="lower left")
     fig.suptitle(
         "Calculated against measured block displacement on validation poses (paper Fig. 11, Table 6)"
     )

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ScenarioError
+from .errors import OutOfRangeError, ScenarioError
 from .lab import LabSetup
 from .robots import RobotDescription, load_robot
 
@@ -254,14 +254,16 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
 
 
 def _check_noise_params(params: dict, source) -> None:
-    try:
-        from .scan_noise import ScanNoise
-    except ImportError:  # pragma: no cover - scanner module always present in a release
-        return
+    from .scanner import ScanNoise
+
     valid = tuple(ScanNoise.__dataclass_fields__)
     _check_keys(params, valid, source, "scanner.noise_params.")
     for key, value in params.items():
-        _number(value, source, f"scanner.noise_params.{key}", 0.0, 1.0)
+        _number(value, source, f"scanner.noise_params.{key}", 0.0, 90.0)
+    try:
+        ScanNoise(**params)
+    except OutOfRangeError as exc:
+        raise _err(source, "scanner.noise_params", str(exc)) from None
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -1,0 +1,80 @@
+import copy
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vtestbed.errors import ScenarioError
+from vtestbed.scenario import load_scenario, parse_scenario
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+@pytest.fixture(scope="module")
+def paper_data():
+    return tomllib.loads((SCENARIOS / "kr60_paper.toml").read_text())
+
+
+def test_shipped_scenarios_load(paper_data):
+    paper = load_scenario(SCENARIOS / "kr60_paper.toml")
+    ideal = load_scenario(SCENARIOS / "kr60_ideal.toml")
+    assert paper.n_tests == ideal.n_tests == 20
+    assert paper.validation_poses.shape == (5, 6)
+    assert not ideal.scanner.noise and paper.scanner.noise
+    # controller -> DH by hand: theta = A, except theta3 = A3 - 90 deg
+    a = np.array(paper_data["poses"]["angles_deg"][0])
+    np.testing.assert_allclose(np.degrees(paper.poses[0]), a - [0, 0, 90, 0, 0, 0], atol=1e-12)
+    assert paper.load.tensions == (200.0,) * 20
+    assert paper.fingerprint != ideal.fingerprint
+
+
+def _broken(data, path, value):
+    out = copy.deepcopy(data)
+    node = out
+    for key in path[:-1]:
+        node = node[key]
+    if value is KeyError:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return out
+
+
+@pytest.mark.parametrize(
+    "path,value,message",
+    [
+        (("colour",), "red", r"colour: unknown key; valid keys: name, description, robot"),
+        (("poses", "convention"), "kuka", r"poses.convention: 'kuka' is not one of dh, controller"),
+        (("poses", "angles_deg"), [[0, 0, 0]], r"poses.angles_deg\[0\]: must be a list of 6 numbers"),
+        (("poses", "angles_deg"), [[0, -150, 90, 0, 60, 0]], r"joint2 = -150.000 deg .*\[-135.0, 35.0\]"),
+        (("load", "tension_N"), 1500.0, r"load.tension_N\[0\]: = 1500 is outside the valid range \[1, 990\]"),
+        (("load", "anchor"), ["ring_10"], r"load.anchor\[0\]: 'ring_10' is not one of ring_1"),
+        (("load", "hook"), [], r"load.hook: must not be empty"),
+        (("scanner", "distance_m"), 2.0, r"scanner.distance_m: = 2 is outside the valid range \[0.1, 1.25\]"),
+        (("scanner", "noise"), "yes", r"scanner.noise: must be true or false"),
+        (("force_sensor", "noise_std"), [0.1] * 5, r"force_sensor.noise_std: must be a list of 6 numbers"),
+        (("identification", "method"), "lasso", r"identification.method: 'lasso' is not one of ols, wls, fgls"),
+        (("seed",), -1, r"seed: must be a non-negative integer"),
+        (("robot",), "ur5", r"robot: unknown robot 'ur5'; valid names: kuka_kr60_3"),
+        (("name",), KeyError, r"name: is required"),
+    ],
+)
+def test_malformed_scenarios_name_the_field(paper_data, path, value, message):
+    with pytest.raises(ScenarioError, match=message):
+        parse_scenario(_broken(paper_data, path, value), "test.toml")
+
+
+def test_unknown_scanner_noise_parameter_lists_the_valid_ones(paper_data):
+    data = _broken(paper_data, ("scanner", "noise_params"), {"speckle": 0.1})
+    with pytest.raises(ScenarioError, match=r"scanner.noise_params.speckle: unknown key; valid keys: "):
+        parse_scenario(data, "test.toml")
+
+
+def test_file_level_errors(tmp_path):
+    with pytest.raises(ScenarioError, match="does not exist"):
+        load_scenario(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = [unclosed\n")
+    with pytest.raises(ScenarioError, match="not valid TOML"):
+        load_scenario(bad)
