@@ -13,6 +13,7 @@ COMMAND_MODULES = [
     "vtestbed.cli_robot",
     "vtestbed.cli_experiment",
     "vtestbed.cli_scan",
+    "vtestbed.cli_poses",
 ]
 
 

@@ -1,0 +1,341 @@
+"""Pose selection away from singularities: the arm-wrist criterion kappa(J_AW)^-1 (paper Sec. 3).
+
+Definition (the paper's Eq. 18-19 are garbled in its text; this is the one vtestbed uses)
+-----------------------------------------------------------------------------------------
+Take the geometric Jacobian ``J = [J_P; J_O]`` (6, 6) of a reference point ``p`` in base axes
+(default: the wrist centre W, the origin of DH frame 5, where axes 4, 5 and 6 meet) and split it
+into 3x3 blocks ``J = [[J11, J12], [J21, J22]]``::
+
+    J11 = [z_1 x (p - p_1), z_2 x (p - p_2), z_3 x (p - p_3)]   [m]
+    J22 = [z_4, z_5, z_6]                                        [1]
+
+With the Frobenius condition number ``kappa_F(M) = ||M||_F ||M^-1||_F / 3`` (``>= 1``, equal
+to 1 exactly for a multiple of an orthogonal matrix), the criterion is::
+
+    inv_kappa = 1 / (kappa_F(J11) kappa_F(J22))
+              = 9 |det J11| |det J22| / (||J11||_F ||adj J11||_F ||J22||_F ||adj J22||_F)
+
+computed in the second form (``M^-1 = adj M / det M``), so it is exactly 0 at a singular pose
+without inverting anything, and lies in [0, 1]. It is free of the length unit: ``J11`` scales
+with the unit as a whole and ``kappa_F`` ignores a scale factor (``J22`` has no unit).
+
+At W, ``J12 = 0`` and ``det J = det J11 det J22``: ``det J22 = 0`` is the wrist singularity
+(``theta_5 = 0``), ``det J11 = 0`` the elbow (W on the line of the joint 2-3 link) and the
+shoulder singularity (W on axis 1). ``1/kappa_F(J22) = sqrt(3 s^2 / (s^2 + 2))`` with
+``s = sin(theta_5)``, so the wrist factor peaks at ``theta_5 = +-90 deg``; at W neither joint 1,
+4 nor 6 changes the criterion. Other reference points (``"flange"``, ``"block"`` or an offset in
+the flange frame) keep the same block formula but then ``J12 != 0`` and joint 4 matters.
+
+All angles are DH angles in rad; lengths in m.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import differential_evolution
+
+from .errors import OutOfRangeError, UnknownNameError, VtestbedError
+from .robots import RobotDescription
+
+POINTS = ("wrist", "flange", "block")
+# The paper's reported optimum (Sec. 3.1), as printed [deg]; read as KUKA controller angles
+# (theta_3 = A3 - 90 deg for the KR60-3) it is a high-criterion pose, read as DH it is not.
+PAPER_OPTIMUM_DEG = (0.0, -4.4822, -99.912, 111.7901, 59.4099, 45.0)
+# Paper Table 2: "rate of change" (second derivative at the maximum) of joints 2..5 [1/deg^2].
+PAPER_TABLE2_PER_DEG2 = (1.4172e-4, -1.0774e-4, -3.6893e-5, -1.5070e-4)
+PAPER_RANKING = (5, 2, 3, 4)
+
+
+class NotSphericalWristError(VtestbedError, ValueError):
+    """A robot the arm-wrist split does not apply to (not 6R, or axes 4-6 do not meet)."""
+
+
+def check_spherical_wrist(robot: RobotDescription, tol: float = 1e-12) -> None:
+    """Raise :class:`NotSphericalWristError` unless ``robot`` is 6R with a spherical wrist.
+
+    Axes 4, 5, 6 meet in one point iff ``a_4 = a_5 = 0`` (``a_prev`` of joints 5 and 6) and
+    ``d_5 = 0``; they must also not be parallel (``sin(alpha_4)``, ``sin(alpha_5)`` != 0).
+    """
+    if robot.dof != 6:
+        raise NotSphericalWristError(
+            f"robot {robot.name!r}: the arm-wrist criterion needs 6 revolute joints, got {robot.dof}"
+        )
+    j = robot.joints
+    checks = (
+        (f"{j[4].name}.a_prev (a_4)", j[4].a_prev, "m"),
+        (f"{j[5].name}.a_prev (a_5)", j[5].a_prev, "m"),
+        (f"{j[4].name}.d (d_5)", j[4].d, "m"),
+    )
+    for field, value, unit in checks:
+        if abs(value) > tol:
+            raise NotSphericalWristError(
+                f"robot {robot.name!r}: {field} = {value:g} {unit} must be 0 for a spherical wrist "
+                "(axes 4, 5 and 6 meeting in one point); the J11/J22 split does not apply"
+            )
+    for k in (4, 5):
+        if abs(np.sin(j[k].alpha_prev)) < 1e-9:
+            raise NotSphericalWristError(
+                f"robot {robot.name!r}: {j[k].name}.alpha_prev = {np.degrees(j[k].alpha_prev):g} deg "
+                "makes two wrist axes parallel; it must not be 0 or 180 deg"
+            )
+
+
+def reference_offset(point="wrist", block_in_flange: np.ndarray | None = None) -> np.ndarray | None:
+    """The reference point as an offset [m] in the flange frame; ``None`` for the wrist centre.
+
+    ``point`` is ``"wrist"``, ``"flange"``, ``"block"`` (origin of the lab's block frame B) or a
+    (3,) offset in the flange frame [m].
+    """
+    if isinstance(point, str):
+        if point == "wrist":
+            return None
+        if point == "flange":
+            return np.zeros(3)
+        if point == "block":
+            if block_in_flange is None:
+                from .lab import LabSetup
+
+                block_in_flange = LabSetup().block_in_flange
+            return np.asarray(block_in_flange, dtype=float)[:3, 3].copy()
+        raise UnknownNameError("reference point", point, POINTS)
+    offset = np.asarray(point, dtype=float)
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise OutOfRangeError(f"reference point offset must be 3 finite numbers [m], got {point!r}")
+    return offset
+
+
+def dh_frames(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised modified-DH forward kinematics.
+
+    Parameters
+    ----------
+    q : (N, n) DH angles [rad]
+
+    Returns
+    -------
+    rot : (N, n, 3, 3) orientation of DH frames 1..n in the base frame
+    pos : (N, n, 3) their origins [m]
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n_pose = q.shape[0]
+    rot = np.empty((n_pose, robot.dof, 3, 3))
+    pos = np.empty((n_pose, robot.dof, 3))
+    r_prev = np.broadcast_to(np.eye(3), (n_pose, 3, 3))
+    p_prev = np.zeros((n_pose, 3))
+    for i, joint in enumerate(robot.joints):
+        ca, sa = np.cos(joint.alpha_prev), np.sin(joint.alpha_prev)
+        ct, st = np.cos(q[:, i]), np.sin(q[:, i])
+        zero = np.zeros_like(ct)
+        local = np.stack(
+            [np.stack([ct, -st, zero], -1), np.stack([st * ca, ct * ca, zero - sa], -1),
+             np.stack([st * sa, ct * sa, zero + ca], -1)], -2,
+        )  # fmt: skip
+        offset = np.array([joint.a_prev, -sa * joint.d, ca * joint.d])
+        p_prev = p_prev + r_prev @ offset
+        r_prev = r_prev @ local
+        rot[:, i], pos[:, i] = r_prev, p_prev
+    return rot, pos
+
+
+def arm_wrist_blocks(robot: RobotDescription, q: np.ndarray, point="wrist"):
+    """The blocks J11 (N, 3, 3) [m] and J22 (N, 3, 3) and the point (N, 3) [m], base axes.
+
+    ``point`` as in :func:`reference_offset`; the wrist centre is the origin of DH frame 5.
+    """
+    offset = reference_offset(point)
+    rot, pos = dh_frames(robot, q)
+    z = rot[..., :, 2]  # (N, n, 3)
+    p = pos[:, 4] if offset is None else pos[:, 5] + rot[:, 5] @ offset
+    j11 = np.stack([np.cross(z[:, i], p - pos[:, i]) for i in range(3)], axis=-1)
+    j22 = z[:, 3:6].transpose(0, 2, 1)
+    return j11, j22, p
+
+
+def inv_kappa_frobenius(m: np.ndarray) -> np.ndarray:
+    """``3 |det M| / (||M||_F ||adj M||_F)`` = 1/kappa_F(M) in [0, 1] for (..., 3, 3) matrices.
+
+    ``adj M`` has the cross products of M's columns as rows, finite at singular matrices.
+    """
+    c1, c2, c3 = m[..., 0], m[..., 1], m[..., 2]
+    x23, x31, x12 = np.cross(c2, c3), np.cross(c3, c1), np.cross(c1, c2)
+    det = np.einsum("...i,...i", c1, x23)
+    adj = np.sqrt((x23**2).sum(-1) + (x31**2).sum(-1) + (x12**2).sum(-1))
+    norm = np.sqrt((m**2).sum((-1, -2)))
+    denom = norm * adj
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(denom > 0, 3.0 * np.abs(det) / np.where(denom > 0, denom, 1.0), 0.0)
+    return np.minimum(out, 1.0)
+
+
+def inv_kappa_batch(robot: RobotDescription, q: np.ndarray, point="wrist") -> np.ndarray:
+    """The criterion (N,) at poses ``q`` (N, 6) [rad]; no limit check (see :func:`criterion`)."""
+    j11, j22, _ = arm_wrist_blocks(robot, q, point)
+    return inv_kappa_frobenius(j11) * inv_kappa_frobenius(j22)
+
+
+@dataclass(frozen=True)
+class CriterionValue:
+    """The criterion at one pose and its two factors."""
+
+    q: np.ndarray  # (6,) DH rad
+    point: str
+    inv_kappa: float  # in [0, 1]
+    inv_kappa_arm: float  # 1/kappa_F(J11)
+    inv_kappa_wrist: float  # 1/kappa_F(J22)
+    det_j11: float  # m^3
+    det_j22: float
+    position: np.ndarray  # (3,) reference point in the base frame [m]
+
+    def to_dict(self) -> dict:
+        return {
+            "q_deg": np.degrees(self.q).tolist(),
+            "point": self.point,
+            "inv_kappa": self.inv_kappa,
+            "inv_kappa_arm": self.inv_kappa_arm,
+            "inv_kappa_wrist": self.inv_kappa_wrist,
+            "det_j11_m3": self.det_j11,
+            "det_j22": self.det_j22,
+            "position_m": self.position.tolist(),
+        }
+
+
+def _point_name(point) -> str:
+    return point if isinstance(point, str) else "offset:" + ",".join(f"{v:g}" for v in np.ravel(point))
+
+
+def criterion(robot: RobotDescription, q, point="wrist", check_limits: bool = True) -> CriterionValue:
+    """The criterion at one DH pose ``q`` (6,) [rad]; raises on a pose outside the limits."""
+    check_spherical_wrist(robot)
+    q = robot.check_pose(q, field="pose") if check_limits else np.asarray(q, dtype=float)
+    j11, j22, p = arm_wrist_blocks(robot, q[None], point)
+    a, w = inv_kappa_frobenius(j11)[0], inv_kappa_frobenius(j22)[0]
+    return CriterionValue(
+        q=q.copy(), point=_point_name(point), inv_kappa=float(a * w), inv_kappa_arm=float(a),
+        inv_kappa_wrist=float(w), det_j11=float(np.linalg.det(j11[0])),
+        det_j22=float(np.linalg.det(j22[0])), position=p[0],
+    )  # fmt: skip
+
+
+def elbow_singular_theta3(robot: RobotDescription) -> tuple[float, float]:
+    """theta_3 [rad] of the stretched and the folded elbow singularity (W in line with link 2-3).
+
+    With axes 2, 3 parallel (``alpha_2 = 0``), W sits at ``(a_3, -sin(alpha_3) d_4)`` in the
+    plane of frame 3; it lines up with ``x_2`` (the link 2-3) when
+    ``a_3 sin(theta_3) - sin(alpha_3) d_4 cos(theta_3) = 0``. KR60-3: -79.97 and 100.03 deg.
+    """
+    j3, j4 = robot.joints[2], robot.joints[3]
+    if abs(np.sin(j3.alpha_prev)) > 1e-12:
+        raise NotSphericalWristError(f"{j3.name}.alpha_prev must be 0 (axes 2 and 3 parallel)")
+    x, y = j4.a_prev, -np.sin(j4.alpha_prev) * j4.d
+    stretched = float(np.arctan2(-y, x))
+    folded = float((stretched + 2 * np.pi) % (2 * np.pi) - np.pi)
+    return stretched, folded
+
+
+def _free_bounds(robot: RobotDescription, joints) -> np.ndarray:
+    return np.array([[robot.lower[j], robot.upper[j]] for j in joints])
+
+
+@dataclass(frozen=True)
+class Optimum:
+    """The maximum of the criterion over joints 2-5 (DH, rad) with joints 1 and 6 fixed."""
+
+    q: np.ndarray  # (6,) DH rad
+    inv_kappa: float
+    point: str
+    seed: int
+    nfev: int  # poses evaluated by the search and its polish
+    gradient: np.ndarray  # (4,) d inv_kappa / d q_j, j = 2..5 [1/rad] (central differences)
+    curvature: np.ndarray  # (4,) d2 inv_kappa / d q_j^2 [1/rad^2]
+    at_limit: tuple[bool, ...]  # (4,) joint within 1e-6 rad of a limit
+
+    def to_dict(self) -> dict:
+        return {
+            "q_deg": np.degrees(self.q).tolist(),
+            "inv_kappa": self.inv_kappa,
+            "point": self.point,
+            "seed": self.seed,
+            "nfev": self.nfev,
+            "gradient_per_rad": self.gradient.tolist(),
+            "curvature_per_rad2": self.curvature.tolist(),
+            "curvature_per_deg2": (self.curvature * np.radians(1.0) ** 2).tolist(),
+            "at_limit": list(self.at_limit),
+        }
+
+
+def finite_difference(f, x: np.ndarray, step: float = np.radians(0.5)) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference gradient and diagonal curvature of scalar ``f`` at ``x`` (Richardson).
+
+    Returns ``(gradient (k,), curvature (k,))`` in units of f per unit (squared) of x.
+    """
+    x = np.asarray(x, dtype=float)
+    grad, curv = np.empty(x.size), np.empty(x.size)
+    f0 = f(x)
+    for k in range(x.size):
+        e = np.zeros(x.size)
+        e[k] = 1.0
+        g, c = [], []
+        for h in (step, step / 2):
+            fp, fm = f(x + h * e), f(x - h * e)
+            g.append((fp - fm) / (2 * h))
+            c.append((fp - 2 * f0 + fm) / h**2)
+        grad[k] = (4 * g[1] - g[0]) / 3
+        curv[k] = (4 * c[1] - c[0]) / 3
+    return grad, curv
+
+
+def optimize(
+    robot: RobotDescription,
+    point="wrist",
+    seed: int = 0,
+    q1: float = 0.0,
+    q6: float = np.radians(45.0),
+    maxiter: int = 400,
+    popsize: int = 40,
+    tol: float = 1e-10,
+) -> Optimum:
+    """Maximise the criterion over joints 2-5 within their limits (differential evolution).
+
+    Joints 1 and 6 are fixed (``q1``, ``q6`` [rad], the paper's 0 and 45 deg). The same seed
+    gives the same numbers; the result is polished by L-BFGS-B inside the bounds. At the wrist
+    centre joint 4 has no influence, so its optimal value is arbitrary there.
+    """
+    check_spherical_wrist(robot)
+    free = (1, 2, 3, 4)
+    bounds = _free_bounds(robot, free)
+
+    def full(x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(x)
+        q = np.empty((x.shape[0], 6))
+        q[:, 0], q[:, 5] = q1, q6
+        q[:, 1:5] = x
+        return q
+
+    evaluations = [0]
+
+    def neg(x: np.ndarray) -> np.ndarray:  # x: (4,) or (4, S) from the vectorised DE
+        x = np.asarray(x, dtype=float)
+        evaluations[0] += x.shape[1] if x.ndim == 2 else 1
+        values = -inv_kappa_batch(robot, full(x.T if x.ndim == 2 else x), point)
+        return values if x.ndim == 2 else float(values[0])
+
+    result = differential_evolution(
+        neg, bounds, seed=seed, maxiter=maxiter, popsize=popsize, tol=tol, polish=True,
+        vectorized=True, updating="deferred", init="sobol",
+    )  # fmt: skip
+    n_eval = evaluations[0]
+    x = np.clip(result.x, bounds[:, 0], bounds[:, 1])
+    grad, curv = finite_difference(lambda v: -neg(np.clip(v, bounds[:, 0], bounds[:, 1])), x)
+    at_limit = tuple(bool(min(x[k] - bounds[k, 0], bounds[k, 1] - x[k]) < 1e-6) for k in range(4))
+    return Optimum(
+        q=full(x)[0], inv_kappa=float(-neg(x)), point=_point_name(point), seed=seed,
+        nfev=n_eval, gradient=grad, curvature=curv, at_limit=at_limit,
+    )  # fmt: skip
+
+
+def paper_optimum(robot: RobotDescription, as_controller: bool = True) -> np.ndarray:
+    """The paper's optimum as DH angles [rad]: read as controller angles (default) or as DH."""
+    q = np.radians(PAPER_OPTIMUM_DEG)
+    return robot.controller_to_dh(q) if as_controller else q
