@@ -195,9 +195,9 @@ def _cmd_optimize(args) -> int:
 def _cmd_maps(args) -> int:
     robot = load_robot(args.robot)
     point = _point(args.point)
-    q = _pose(robot, args, default=None)
+    q, label = _pose(robot, args, default=None), "given pose"
     if q is None:
-        q = _optimum(robot, args).q
+        q, label = _optimum(robot, args).q, "optimum"
     pmap = regions.joint_plane_map(robot, q, point, step_deg=args.step_deg)
     found = regions.find_regions(pmap, threshold=args.threshold)
     cmap = regions.cartesian_map(robot, q, point, step_deg=args.step_deg / 2)
@@ -206,7 +206,10 @@ def _cmd_maps(args) -> int:
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        marks = [("pose", q, "w*"), ("paper (controller)", poses.paper_optimum(robot), "ro")]
+        marks = [
+            (label, q, "w*"),
+            ("paper's optimum (as controller angles)", poses.paper_optimum(robot), "ro"),
+        ]
         plot_joint_plane(pmap, found, out / "joint_plane.png", marks)
         plot_cartesian(cmap, out / "cartesian.png")
         data["files"] = [str(out / "joint_plane.png"), str(out / "cartesian.png")]

@@ -124,14 +124,13 @@ def dh_frames(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.nd
     pos = np.empty((n_pose, robot.dof, 3))
     r_prev = np.broadcast_to(np.eye(3), (n_pose, 3, 3))
     p_prev = np.zeros((n_pose, 3))
+    local = np.zeros((n_pose, 3, 3))
     for i, joint in enumerate(robot.joints):
         ca, sa = np.cos(joint.alpha_prev), np.sin(joint.alpha_prev)
         ct, st = np.cos(q[:, i]), np.sin(q[:, i])
-        zero = np.zeros_like(ct)
-        local = np.stack(
-            [np.stack([ct, -st, zero], -1), np.stack([st * ca, ct * ca, zero - sa], -1),
-             np.stack([st * sa, ct * sa, zero + ca], -1)], -2,
-        )  # fmt: skip
+        local[:, 0, 0], local[:, 0, 1] = ct, -st
+        local[:, 1, 0], local[:, 1, 1], local[:, 1, 2] = st * ca, ct * ca, -sa
+        local[:, 2, 0], local[:, 2, 1], local[:, 2, 2] = st * sa, ct * sa, ca
         offset = np.array([joint.a_prev, -sa * joint.d, ca * joint.d])
         p_prev = p_prev + r_prev @ offset
         r_prev = r_prev @ local
@@ -148,9 +147,18 @@ def arm_wrist_blocks(robot: RobotDescription, q: np.ndarray, point="wrist"):
     rot, pos = dh_frames(robot, q)
     z = rot[..., :, 2]  # (N, n, 3)
     p = pos[:, 4] if offset is None else pos[:, 5] + rot[:, 5] @ offset
-    j11 = np.stack([np.cross(z[:, i], p - pos[:, i]) for i in range(3)], axis=-1)
+    j11 = np.stack([_cross(z[:, i], p - pos[:, i]) for i in range(3)], axis=-1)
     j22 = z[:, 3:6].transpose(0, 2, 1)
     return j11, j22, p
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product along the last axis (faster than np.cross for small batches)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def inv_kappa_frobenius(m: np.ndarray) -> np.ndarray:
@@ -158,9 +166,10 @@ def inv_kappa_frobenius(m: np.ndarray) -> np.ndarray:
 
     ``adj M`` has the cross products of M's columns as rows, finite at singular matrices.
     """
+    m = np.asarray(m, dtype=float)
     c1, c2, c3 = m[..., 0], m[..., 1], m[..., 2]
-    x23, x31, x12 = np.cross(c2, c3), np.cross(c3, c1), np.cross(c1, c2)
-    det = np.einsum("...i,...i", c1, x23)
+    x23, x31, x12 = _cross(c2, c3), _cross(c3, c1), _cross(c1, c2)
+    det = (c1 * x23).sum(-1)
     adj = np.sqrt((x23**2).sum(-1) + (x31**2).sum(-1) + (x12**2).sum(-1))
     norm = np.sqrt((m**2).sum((-1, -2)))
     denom = norm * adj
