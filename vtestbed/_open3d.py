@@ -29,6 +29,10 @@ _preload_libusb()
 import open3d  # noqa: E402
 
 open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
+# open3d's multi-threaded RANSAC (segment_plane) is not repeatable even with a fixed seed: the
+# threads race for the best model. One thread makes the same seed give the same frame; parallel
+# speed comes from running trials in separate processes instead.
+open3d.utility.set_max_threads(1)
 
 o3d = open3d
 __all__ = ["o3d"]

@@ -64,7 +64,24 @@ def commanded_pose(record: TestRecord, setup: DatasetSetup, robot) -> np.ndarray
 
 
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
-    """Fit both clouds of one test and build its wrench, displacement and Jacobian."""
+    """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian."""
+    clouds = []
+    for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
+        try:
+            clouds.append(cloud.read_ply(path))
+        except VtestbedError as exc:
+            raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
+    return measure_arrays(record, clouds[0], clouds[1], setup, kin)
+
+
+def measure_arrays(
+    record: TestRecord,
+    cloud_unloaded: np.ndarray,
+    cloud_loaded: np.ndarray,
+    setup: DatasetSetup,
+    kin: ArmKinematics,
+) -> TestMeasurement:
+    """As :func:`measure_test`, with the clouds (N, 3) [m, scanner frame] already in memory."""
     q = commanded_pose(record, setup, kin.robot)
     kin.robot.check_pose(q, field=f"test {record.test_id} pose")
     # Where the block should be in the scanner frame, from the rough scanner pose and the
@@ -73,11 +90,11 @@ def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) ->
     nominal = invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
     params = cloud.FitParams(edge_m=setup.block_edge)
     frames = []
-    for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
+    for label, points in (("unloaded", cloud_unloaded), ("loaded", cloud_loaded)):
         try:
-            fit = cloud.fit_block_frame(cloud.read_ply(path), nominal, params)
+            fit = cloud.fit_block_frame(points, nominal, params)
         except VtestbedError as exc:
-            raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
+            raise ScanError(f"test {record.test_id}, {label} cloud: {exc}") from None
         frames.append(fit.pose)
         nominal = fit.pose
     return TestMeasurement(

@@ -1,0 +1,141 @@
+"""Monte Carlo on fixed physics: solve and ray-cast each test once, redraw the noise per trial.
+
+The equilibrium and the ray-cast geometry of a test depend on the pose and the load only, not
+on the noise, so :func:`prepare` computes them once; :func:`trial` then draws the scanner and
+force-sensor noise for one seed and runs the researcher's own code
+(:func:`vtestbed.analysis.measure_arrays`, :func:`vtestbed.identify.identify`) on the result.
+
+A trial with seed ``s`` consumes the random numbers in the same order as
+:func:`vtestbed.experiment.simulate` with ``seed = s``, so it reproduces that dataset exactly.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .analysis import TestMeasurement, identify_measurements, measure_arrays
+from .dataset import DatasetSetup, TestRecord
+from .experiment import dataset_setup, test_rng
+from .identify import IdentificationResult
+from .kinematics import ArmKinematics
+from .lab import LabSetup
+from .rig import Rig
+from .scanner import ScanGeometry, Scanner, ScanNoise
+from .scenario import Scenario
+from .sensors import ForceTorqueSensor
+
+
+@dataclass(frozen=True)
+class PreparedTest:
+    """The noise-free part of one test: equilibrium wrenches and ray-cast geometry."""
+
+    test_id: str
+    group: str
+    index: int
+    q: np.ndarray  # (n,) commanded DH [rad]
+    scanner_pose: np.ndarray  # (4, 4)
+    hits_unloaded: ScanGeometry
+    hits_loaded: ScanGeometry
+    wrench_unloaded: np.ndarray  # (6,) true sensor wrench
+    wrench_loaded: np.ndarray  # (6,)
+    displacement_true: np.ndarray  # (6,) block frame [m, rad]
+
+
+@dataclass(frozen=True)
+class PreparedScenario:
+    scenario: Scenario
+    setup: DatasetSetup
+    tests: tuple[PreparedTest, ...]
+    stiffness_true: np.ndarray
+
+    def identification_tests(self) -> list[PreparedTest]:
+        return [t for t in self.tests if t.group == "identification"]
+
+
+def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedScenario:
+    """Solve every test's equilibrium and ray-cast both scans once (deterministic)."""
+    from .experiment import _true_block_displacement
+
+    lab = LabSetup()
+    rig = Rig(scenario.robot(), lab)
+    placement = {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
+    jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
+    if include_validation:
+        jobs += [
+            ("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)
+        ]
+    tests = []
+    for group, i, q, load in jobs:
+        rig.command(q)
+        rig.hook(load.hooks[i], load.anchors[i])
+        s0 = rig.solve()
+        scanner = Scanner.place(lab, s0.block_pose, distance_m=scenario.scanner.distance, **placement)
+        hits0 = scanner.cast(rig.model, rig.data)
+        s1 = rig.tighten(load.tensions[i])
+        hits1 = scanner.cast(rig.model, rig.data)
+        tests.append(
+            PreparedTest(
+                test_id=f"{'T' if group == 'identification' else 'V'}{i + 1:03d}",
+                group=group,
+                index=i,
+                q=np.asarray(q),
+                scanner_pose=scanner.pose_world,
+                hits_unloaded=hits0,
+                hits_loaded=hits1,
+                wrench_unloaded=s0.sensor_wrench,
+                wrench_loaded=s1.sensor_wrench,
+                displacement_true=_true_block_displacement(s0, s1),
+            )
+        )
+    return PreparedScenario(scenario, dataset_setup(scenario, lab), tuple(tests), rig.robot.stiffness_true)
+
+
+def measure_trial(
+    prepared: PreparedScenario,
+    seed: int,
+    tests: list[PreparedTest] | None = None,
+    noise: ScanNoise | None | str = "scenario",
+    sensor: ForceTorqueSensor | None = None,
+) -> list[TestMeasurement]:
+    """Draw one trial's noise (seed ``seed``) and reduce each test as the researcher would.
+
+    ``noise="scenario"`` uses the scenario's scanner noise; ``None`` is a perfect scanner.
+    """
+    sc = prepared.scenario
+    if isinstance(noise, str):
+        noise = ScanNoise(**sc.scanner.noise_params) if sc.scanner.noise else None
+    lab = LabSetup()
+    sensor = sensor or ForceTorqueSensor(lab.sensor, sc.force_sensor.noise_std, sc.force_sensor.bias)
+    kin = ArmKinematics(sc.robot(), prepared.setup.block_in_flange)
+    out = []
+    for t in tests if tests is not None else prepared.identification_tests():
+        rng = test_rng(seed, t.group, t.index)
+        cloud0 = noise.apply(t.hits_unloaded, rng) if noise is not None else t.hits_unloaded.points_m.copy()
+        w0 = sensor.read(t.wrench_unloaded, rng)
+        cloud1 = noise.apply(t.hits_loaded, rng) if noise is not None else t.hits_loaded.points_m.copy()
+        w1 = sensor.read(t.wrench_loaded, rng)
+        record = TestRecord(t.test_id, t.group, np.degrees(t.q), w0, w1, t.scanner_pose, Path(), Path())
+        out.append(measure_arrays(record, cloud0, cloud1, prepared.setup, kin))
+    return out
+
+
+def trial(
+    prepared: PreparedScenario,
+    seed: int,
+    n_tests: int | None = None,
+    method: str | None = None,
+    noise: ScanNoise | None | str = "scenario",
+    sensor: ForceTorqueSensor | None = None,
+) -> IdentificationResult:
+    """One virtual experiment with the first ``n_tests`` identification tests."""
+    tests = prepared.identification_tests()[:n_tests]
+    measurements = measure_trial(prepared, seed, tests, noise, sensor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return identify_measurements(
+            measurements, method or prepared.scenario.method, prepared.scenario.robot().joint_names
+        )
