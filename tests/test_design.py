@@ -89,7 +89,7 @@ def test_exchange_finds_the_exhaustive_optimum(robot, candidates, criterion):
     greedy = design.select_tests(pool, n, k, criterion=criterion, method="greedy")
     exchange = design.select_tests(pool, n, k, criterion=criterion, method="exchange")
     assert score(exchange.indices) >= score(greedy.indices) - 1e-12
-    assert score(exchange.indices) == pytest.approx(best, rel=0.02)
+    assert score(exchange.indices) == pytest.approx(best, rel=1e-9)  # greedy alone misses it here
     assert len(set(exchange.indices)) == n
 
 
