@@ -128,10 +128,11 @@ def test_a_design_beats_a_random_choice(robot, candidates):
 
 @pytest.mark.skip(reason="TODO(identification owner): wire to vtestbed.experiment once its API is settled")
 def test_predicted_std_matches_the_virtual_lab_scatter():
-    """Full virtual-lab version: run a scenario built from `poses design` tests (scanner and F/T
-    noise, truth world) over >= 30 seeds; the scatter of each identified k_j should match
+    """Full virtual-lab version: run the scenario design.scenario_toml(chosen tests) gives (scanner
+    and F/T noise, truth world) over >= 30 seeds; the scatter of each identified k_j should match
     design.evaluate(...).stiffness_std within a factor 1.5 once sigma_p, sigma_r are set from the
-    scanner's measured displacement noise (the scan pipeline's per-test std)."""
+    scan pipeline's measured displacement noise. Mind that the F/T noise enters A (not modelled
+    in design.py) and that the world's biases (CoSM, link compliance) shift the mean, not the scatter."""
 
 
 def test_bad_input_is_refused(robot, candidates):
@@ -148,3 +149,18 @@ def test_bad_input_is_refused(robot, candidates):
         design.candidate_tests(robot, np.radians(POSES_DEG[:1]), tension=1500.0)
     with pytest.raises(OutOfRangeError, match="do not identify all 6 joints"):
         design.evaluate(np.zeros((2, 6, 6)), k)
+
+
+def test_chosen_tests_make_a_valid_scenario(robot, candidates):
+    import tomllib
+
+    from vtestbed.scenario import parse_scenario
+
+    sel = design.select_tests(candidates, 5, robot.stiffness_true)
+    chosen = [candidates[i] for i in sel.indices]
+    data = tomllib.loads(design.scenario_toml(chosen)) | {"name": "designed"}
+    scen = parse_scenario(data)
+    np.testing.assert_allclose(np.array(scen.poses), [c.q for c in chosen], atol=1e-6)  # 4 decimals in deg
+    assert list(scen.load.anchors) == [c.anchor for c in chosen] and list(scen.load.hooks) == [
+        c.hook for c in chosen
+    ]

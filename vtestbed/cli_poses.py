@@ -275,6 +275,11 @@ def _cmd_design(args) -> int:
     data = {"candidates": len(cands), "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
             "stiffness_prior_Nmm_per_rad": (prior * 1e3).tolist(), "selection": sel.to_dict(),
             "tests": [cands[i].to_dict() for i in sel.indices]}  # fmt: skip
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        header = f"# {args.tests} tests chosen by 'vtestbed poses design' ({args.criterion}-optimal, {args.method})\n"
+        toml = header + design.scenario_toml([cands[i] for i in sel.indices])
+        (Path(args.out) / "design_scenario.toml").write_text(toml)
     _emit(args, data, "design.json")
     return 0
 

@@ -306,3 +306,23 @@ def select_tests(
     tests = _a_stack(candidates)[chosen]
     report = evaluate(tests, 1.0 / s, sigma_p, sigma_r)
     return Selection(tuple(chosen), criterion, method, report, swaps)
+
+
+def scenario_toml(tests) -> str:
+    """The ``[poses]`` and ``[load]`` tables of a scenario file for these tests (DH angles in deg)."""
+    tests = list(tests)
+    if not tests:
+        raise OutOfRangeError("scenario_toml needs at least one test")
+    rows = ",\n".join("    [" + ", ".join(f"{v:9.4f}" for v in np.degrees(t.q)) + "]" for t in tests)
+    tensions = {t.tension for t in tests}
+    tension = (
+        f"{tensions.pop():g}"
+        if len(tensions) == 1
+        else "[" + ", ".join(f"{t.tension:g}" for t in tests) + "]"
+    )
+    return (
+        '[poses]\nconvention = "dh"\nangles_deg = [\n' + rows + ",\n]\n\n[load]\n"
+        f"hook = [{', '.join(repr(t.hook).replace(chr(39), chr(34)) for t in tests)}]\n"
+        f"anchor = [{', '.join(repr(t.anchor).replace(chr(39), chr(34)) for t in tests)}]\n"
+        f"tension_N = {tension}\n"
+    )
