@@ -235,7 +235,7 @@ def _cmd_influence(args) -> int:
 
 def _regions_and_poses(robot, args):
     q = _optimum(robot, args).q
-    pmap = regions.joint_plane_map(robot, q, "wrist", step_deg=args.step_deg)
+    pmap = regions.joint_plane_map(robot, q, _point(args.point), step_deg=args.step_deg)
     found = regions.restrict(
         regions.find_regions(pmap, threshold=args.threshold), pmap, robot, _constraints(args)
     )

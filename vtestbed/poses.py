@@ -218,6 +218,8 @@ def criterion(robot: RobotDescription, q, point="wrist", check_limits: bool = Tr
     """The criterion at one DH pose ``q`` (6,) [rad]; raises on a pose outside the limits."""
     check_spherical_wrist(robot)
     q = robot.check_pose(q, field="pose") if check_limits else np.asarray(q, dtype=float)
+    if q.shape != (robot.dof,) or not np.all(np.isfinite(q)):
+        raise OutOfRangeError(f"pose must be {robot.dof} finite DH angles [rad], got {q!r}")
     j11, j22, p = arm_wrist_blocks(robot, q[None], point)
     a, w = inv_kappa_frobenius(j11)[0], inv_kappa_frobenius(j22)[0]
     return CriterionValue(
