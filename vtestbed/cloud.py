@@ -48,7 +48,8 @@ class FitParams:
     ransac_threshold_m, ransac_iterations : float, int
         open3d ``segment_plane`` inlier distance [m] and iterations per face.
     inlier_sigmas, min_threshold_m, refine_iterations : float, float, int
-        Least-squares refinement: inliers within ``max(inlier_sigmas * 1.4826 * MAD, min_threshold_m)``.
+        Least-squares refinement: inliers within ``max(inlier_sigmas * 1.4826 * MAD, min_threshold_m)``
+        of their own plane, iterated (at most ``refine_iterations`` times) until the set is stable.
     min_face_points : int
         Fewest points a face must keep.
     min_extent_fraction : float
@@ -67,7 +68,7 @@ class FitParams:
     ransac_iterations: int = 50
     inlier_sigmas: float = 4.5
     min_threshold_m: float = 1e-6
-    refine_iterations: int = 2
+    refine_iterations: int = 10
     min_face_points: int = 100
     min_extent_fraction: float = 0.5
     angle_tolerance_deg: float = 10.0
@@ -135,11 +136,11 @@ def _as_pose(pose, name: str) -> np.ndarray:
     return pose
 
 
-def _plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares (total) plane through (N, 3) points: unit normal and centroid."""
-    centroid = points.mean(axis=0)
-    centred = points - centroid
-    _, vecs = np.linalg.eigh(centred.T @ centred)
+def _plane(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares (total) plane through points given as columns (3, N): unit normal and centroid."""
+    centroid = cols.mean(axis=1)
+    centred = cols - centroid[:, None]
+    _, vecs = np.linalg.eigh(centred @ centred.T)
     return vecs[:, 0], centroid
 
 
@@ -152,23 +153,23 @@ def _seed_o3d(rng: np.random.Generator | None) -> None:
     o3d.utility.random.seed(0 if rng is None else int(rng.integers(0, 2**31 - 1)))
 
 
-def _remove_outliers(q: np.ndarray, params: FitParams) -> np.ndarray:
-    """(N,) mask of the points that pass open3d's statistical outlier removal.
+def _remove_outliers(cols: np.ndarray, params: FitParams) -> np.ndarray:
+    """(N,) mask of the points (columns of (3, N)) that pass open3d's statistical outlier removal.
 
     With ``sor_voxel_m > 0`` the filter runs on voxel centroids (a point goes with its voxel): an
-    isolated stray point keeps its own, isolated voxel, and the cost drops about fourfold.
+    isolated stray point keeps its own, isolated voxel, and the cost drops about fivefold.
     Outliers closer to a face than a voxel are left to the plane fit's inlier threshold.
     """
     if params.sor_neighbors == 0:
-        return np.ones(len(q), dtype=bool)
+        return np.ones(cols.shape[1], dtype=bool)
     if params.sor_voxel_m > 0:
-        cell = np.floor((q - q.min(axis=0)) / params.sor_voxel_m).astype(np.int64)
-        _, inverse = np.unique((cell[:, 0] << 42) | (cell[:, 1] << 21) | cell[:, 2], return_inverse=True)
+        cell = np.floor((cols - cols.min(axis=1, keepdims=True)) / params.sor_voxel_m).astype(np.int64)
+        _, inverse = np.unique((cell[0] << 42) | (cell[1] << 21) | cell[2], return_inverse=True)
         inverse = inverse.ravel()
         count = np.bincount(inverse)
-        centres = np.stack([np.bincount(inverse, q[:, i]) for i in range(3)], axis=1) / count[:, None]
+        centres = np.stack([np.bincount(inverse, c) for c in cols], axis=1) / count[:, None]
     else:
-        inverse, centres = np.arange(len(q)), q
+        inverse, centres = np.arange(cols.shape[1]), np.ascontiguousarray(cols.T)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centres))
     _, kept = cloud.remove_statistical_outlier(params.sor_neighbors, params.sor_std_ratio)
     mask = np.zeros(len(centres), dtype=bool)
@@ -176,23 +177,30 @@ def _remove_outliers(q: np.ndarray, params: FitParams) -> np.ndarray:
     return mask[inverse]
 
 
-def _fit_face(points: np.ndarray, label: str, params: FitParams) -> tuple[np.ndarray, float, float]:
-    """RANSAC (open3d) then least-squares refinement of one face: normal, offset, inlier threshold."""
-    if len(points) < params.min_face_points:
+def _fit_face(cols: np.ndarray, label: str, params: FitParams) -> tuple[np.ndarray, float, float]:
+    """RANSAC (open3d) then least-squares refinement of one face (3, N): normal, offset, threshold."""
+    if cols.shape[1] < params.min_face_points:
         raise ScanError(
-            f"fewer than three block faces found: face {label} has {len(points)} points near its nominal "
+            f"fewer than three block faces found: face {label} has {cols.shape[1]} points near its nominal "
             f"plane (need min_face_points = {params.min_face_points}); the face is hidden, seen edge-on, or "
             "the nominal pose is off by more than crop_margin_m"
         )
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(cols.T)))
     model, _ = cloud.segment_plane(params.ransac_threshold_m, 3, params.ransac_iterations)
     normal, offset = np.asarray(model[:3]), -float(model[3])
-    threshold = params.ransac_threshold_m
+    # Refine to a fixed point of "inliers = points within the MAD threshold of their own LS plane",
+    # so that the result does not depend on which of the (equally good) RANSAC planes was drawn:
+    # open3d draws RANSAC samples in parallel threads, not repeatably on a busy machine.
+    inliers = np.abs(normal @ cols - offset) < params.ransac_threshold_m
     for _ in range(params.refine_iterations):
-        residual = np.abs(points @ normal - offset)
-        threshold = _threshold(residual[residual < threshold], params)
-        normal, centroid = _plane(points[residual < threshold])
+        normal, centroid = _plane(cols[:, inliers])
         offset = float(normal @ centroid)
+        residual = np.abs(normal @ cols - offset)
+        threshold = _threshold(residual[inliers], params)
+        new = residual < threshold
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
     return normal, offset, threshold
 
 
@@ -221,8 +229,11 @@ def fit_block_frame(
     pts = _as_points(points)
     nom = _as_pose(nominal, "nominal")
     e, m = params.edge_m, params.crop_margin_m
-    q = (pts - nom[:3, 3]) @ nom[:3, :3]  # everything below works in the nominal block frame
-    in_box = (q.min(axis=1) >= -e - m) & (q.max(axis=1) <= m)
+    # Everything below works on columns (3, N) in the nominal block frame: fast row-wise numpy.
+    q = nom[:3, :3].T @ (pts - nom[:3, 3]).T
+    in_box = np.ones(q.shape[1], dtype=bool)
+    for row in q:
+        in_box &= (row >= -e - m) & (row <= m)
     n_box = int(in_box.sum())
     if n_box < 3 * params.min_face_points:
         raise ScanError(
@@ -230,24 +241,27 @@ def fit_block_frame(
             f"of the nominal block (need {3 * params.min_face_points}); the block is out of view or the "
             "nominal pose is wrong"
         )
-    q = q[in_box]
+    q = q[:, in_box]
     keep = _remove_outliers(q, params)
-    q = q[keep]
+    q = q[:, keep]
     _seed_o3d(rng)
     dist = np.abs(q)
-    nearest = np.argmin(dist, axis=1)
-    nearest[np.take_along_axis(dist, nearest[:, None], axis=1)[:, 0] >= m] = 3
-    seeds = [_fit_face(q[nearest == k], FACES[k], params) for k in range(3)]
+    nearest = np.where(
+        dist[0] < dist[1], np.where(dist[0] < dist[2], 0, 2), np.where(dist[1] < dist[2], 1, 2)
+    )
+    nearest[np.minimum(np.minimum(dist[0], dist[1]), dist[2]) >= m] = 3
+    seeds = [_fit_face(q[:, nearest == k], FACES[k], params) for k in range(3)]
     normals = np.array([s[0] for s in seeds])
     offsets = np.array([s[1] for s in seeds])
-    within = np.abs(q @ normals.T - offsets) < np.array([s[2] for s in seeds])
-    owner = np.where(within.sum(axis=1) == 1, np.argmax(within, axis=1), 3)
+    within = np.abs(normals @ q - offsets[:, None]) < np.array([s[2] for s in seeds])[:, None]
+    owner = np.where(within[0], 0, np.where(within[1], 1, np.where(within[2], 2, 3)))
+    owner[within.sum(axis=0) > 1] = 3  # on two planes: an edge point, left out
     counts, rms = np.zeros(3, dtype=int), np.zeros(3)
     for k in range(3):
-        face = q[owner == k]
-        if len(face) < params.min_face_points:
+        face = q[:, owner == k]
+        if face.shape[1] < params.min_face_points:
             raise ScanError(
-                f"face {FACES[k]} keeps only {len(face)} points after segmentation (need "
+                f"face {FACES[k]} keeps only {face.shape[1]} points after segmentation (need "
                 f"min_face_points = {params.min_face_points})"
             )
         normal, centroid = _plane(face)
@@ -258,15 +272,15 @@ def fit_block_frame(
                 f"face {FACES[k]}: fitted normal is {angle:.1f} deg from the nominal axis (> "
                 f"angle_tolerance_deg = {params.angle_tolerance_deg:g})"
             )
-        extent = np.ptp(np.delete(face, k, axis=1), axis=0)
-        if extent.min() < params.min_extent_fraction * e:
+        extent = min(np.ptp(face[j]) for j in range(3) if j != k)
+        if extent < params.min_extent_fraction * e:
             raise ScanError(
-                f"face {FACES[k]} spans only {extent.min() * 1e3:.1f} mm of the {e * 1e3:g} mm block edge "
+                f"face {FACES[k]} spans only {extent * 1e3:.1f} mm of the {e * 1e3:g} mm block edge "
                 f"(min_extent_fraction = {params.min_extent_fraction:g}): the block is partly outside the "
                 "measuring volume or occluded"
             )
         normals[k], offsets[k] = normal, normal @ centroid
-        counts[k], rms[k] = len(face), np.sqrt(np.mean(((face - centroid) @ normal) ** 2))
+        counts[k], rms[k] = face.shape[1], np.sqrt(np.mean((normal @ face - offsets[k]) ** 2))
     cosines = np.abs([normals[0] @ normals[1], normals[0] @ normals[2], normals[1] @ normals[2]])
     skew = float(np.arcsin(min(cosines.max(), 1.0)))
     if np.degrees(skew) > params.max_skew_deg:

@@ -60,27 +60,13 @@ def _check_pose(pose, name: str) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ScanGeometry:
-    """Noise-free hits of one scan, in the scanner frame (the deterministic half of a scan).
+    """Noise-free hits of one scan, in the scanner frame (the deterministic half of a scan)."""
 
-    Attributes
-    ----------
-    points_m : (N, 3) array
-        Hit points [m].
-    directions : (N, 3) array
-        Unit ray directions.
-    normals : (N, 3) array
-        Outward unit surface normals at the hits.
-    geom_ids : (N,) int array
-        MuJoCo geom hit by each ray (truth-side information, not in a lab scan).
-    ray_index : (N,) int array
-        Row of :attr:`Scanner.ray_directions` of each hit.
-    """
-
-    points_m: np.ndarray
-    directions: np.ndarray
-    normals: np.ndarray
-    geom_ids: np.ndarray
-    ray_index: np.ndarray
+    points_m: np.ndarray  # (N, 3) hit points [m]
+    directions: np.ndarray  # (N, 3) unit ray directions
+    normals: np.ndarray  # (N, 3) outward unit surface normals at the hits
+    geom_ids: np.ndarray  # (N,) MuJoCo geom of each hit (truth-side information, not in a lab scan)
+    ray_index: np.ndarray  # (N,) row of Scanner.ray_directions of each hit
 
     def __len__(self) -> int:
         return len(self.points_m)
@@ -246,8 +232,10 @@ class Scanner:
                 f"({self.area_m[0]:g} m / {spec.resolution_px[0]} px = {pixel:.3g} m); use a coarser "
                 "spacing or a smaller measuring area"
             )
+        object.__setattr__(self, "area_m", tuple(float(x) for x in self.area_m))
         if self.window is not None:
-            u0, u1, v0, v1 = (float(x) for x in self.window)
+            object.__setattr__(self, "window", tuple(float(x) for x in self.window))
+            u0, u1, v0, v1 = self.window
             hu, hv = self.half_field
             if not (-hu <= u0 < u1 <= hu and -hv <= v0 < v1 <= hv):
                 raise OutOfRangeError(
@@ -290,43 +278,33 @@ class Scanner:
         return (np.asarray(points_world, dtype=float) - self.pose_world[:3, 3]) @ self.pose_world[:3, :3]
 
     def check_in_volume(self, points_s: np.ndarray, what: str = "block") -> None:
-        """Raise :class:`ScanError` unless every point (scanner frame, (N, 3)) is in the measuring volume."""
+        """Raise :class:`ScanError` unless all (N, 3) points (scanner frame) lie in the measuring volume."""
         pts = np.asarray(points_s, dtype=float).reshape(-1, 3)
-        near, far = self.depth_range_m
-        z = pts[:, 2]
+        (near, far), (hu, hv), z = self.depth_range_m, self.half_field, pts[:, 2]
+        u0, u1, v0, v1 = self.window if self.window is not None else (-hu, hu, -hv, hv)
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = pts[:, 0] / z, pts[:, 1] / z
-        hu, hv = self.half_field
-        u0, u1, v0, v1 = self.window if self.window is not None else (-hu, hu, -hv, hv)
+        in_field = (z > 0) & (np.abs(u) <= hu) & (np.abs(v) <= hv)
+        in_window = in_field & (u >= u0) & (u <= u1) & (v >= v0) & (v <= v1)
         problems = []
         if np.any(z < near):
             problems.append(f"closer than the near limit (z down to {z.min():.4f} m < {near:.4f} m)")
         if np.any(z > far):
             problems.append(f"beyond the far limit (z up to {z.max():.4f} m > {far:.4f} m)")
-        ok_z = z > 0
-        if np.any(ok_z & ((u < -hu) | (u > hu) | (v < -hv) | (v > hv))):
+        if not in_field.all():
             problems.append(
                 f"outside the field of view (the {self.area_m[0] * 1e3:.0f} x {self.area_m[1] * 1e3:.0f} mm "
                 f"measuring area at {self.standoff_m:.3f} m)"
             )
-        elif self.window is not None and np.any(ok_z & ((u < u0) | (u > u1) | (v < v0) | (v > v1))):
+        elif not in_window.all():
             problems.append("outside the scan window (region of interest) set at placement")
         if problems:
-            inside = self._inside_count(pts)
-            extent = "wholly" if inside == 0 else "partly"
+            inside = int(np.sum(in_window & (z >= near) & (z <= far)))
             raise ScanError(
-                f"{what} {extent} outside the measuring volume of the {self.spec.name}: {inside} of "
-                f"{len(pts)} corners inside; corners {'; '.join(problems)}. Move the scanner or the block."
+                f"{what} {'wholly' if inside == 0 else 'partly'} outside the measuring volume of the "
+                f"{self.spec.name}: {inside} of {len(pts)} corners inside; corners {'; '.join(problems)}. "
+                "Move the scanner or the block."
             )
-
-    def _inside_count(self, pts: np.ndarray) -> int:
-        near, far = self.depth_range_m
-        z = pts[:, 2]
-        hu, hv = self.half_field
-        u0, u1, v0, v1 = self.window if self.window is not None else (-hu, hu, -hv, hv)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u, v = pts[:, 0] / z, pts[:, 1] / z
-        return int(np.sum((z >= near) & (z <= far) & (u >= u0) & (u <= u1) & (v >= v0) & (v <= v1)))
 
     # ------------------------------------------------------------------ placement
     @classmethod
@@ -364,6 +342,8 @@ class Scanner:
             Further :class:`Scanner` fields (``area_m``, ``depth_m``, ``point_spacing_m``, ``spec``).
         """
         block_pose_world = _check_pose(block_pose_world, "block_pose_world")
+        spec = kwargs.get("spec", ScannerSpec())
+        distance_m = check_range("distance_m (scanner stand-off)", distance_m, *spec.working_distance_m, "m")
         view = np.asarray(view_direction_block, dtype=float)
         if view.shape != (3,) or not np.all(np.isfinite(view)) or np.linalg.norm(view) == 0:
             raise OutOfRangeError(
@@ -406,12 +386,8 @@ class Scanner:
         margin = check_range("roi_margin_m", roi_margin_m, 0.0, 1.0, "m") / distance_m
         u, v = corners_s[:, 0] / corners_s[:, 2], corners_s[:, 1] / corners_s[:, 2]
         hu, hv = scanner.half_field
-        window = (
-            max(-hu, u.min() - margin),
-            min(hu, u.max() + margin),
-            max(-hv, v.min() - margin),
-            min(hv, v.max() + margin),
-        )
+        window = (max(-hu, u.min() - margin), min(hu, u.max() + margin))
+        window += (max(-hv, v.min() - margin), min(hv, v.max() + margin))
         return cls(pose_world=pose, standoff_m=distance_m, window=window, **kwargs)
 
     # ------------------------------------------------------------------ scanning
