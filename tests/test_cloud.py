@@ -223,6 +223,9 @@ def test_same_seed_same_frame_also_through_ply(world, tmp_path):
     points = noise.apply(hits, np.random.default_rng(7))
     others = [fit_block_frame(points, _rough(true), rng=np.random.default_rng(s)).pose for s in range(10)]
     assert all(np.array_equal(p, others[0]) for p in others)
+    # nor on the rounding of the nominal pose (e.g. a scanner pose stored as a rotation vector)
+    nudged = _rough(true) @ homogeneous(matrix_from_rotation_vector([1e-12, -2e-12, 1e-12]), [1e-13, 0, 0])
+    assert np.array_equal(fit_block_frame(points, nudged).pose, others[0])
     rng = np.random.default_rng(7)
     path = write_ply(tmp_path / "scan.ply", noise.apply(hits, rng))
     assert np.array_equal(fit_block_frame(read_ply(path), _rough(true), rng=rng).pose, poses[0])

@@ -229,8 +229,12 @@ def fit_block_frame(
     pts = _as_points(points)
     nom = _as_pose(nominal, "nominal")
     e, m = params.edge_m, params.crop_margin_m
-    # Everything below works on columns (3, N) in the nominal block frame: fast row-wise numpy.
-    q = nom[:3, :3].T @ (pts - nom[:3, 3]).T
+    # Columns (3, N) for fast row-wise numpy. The nominal block frame (q) only selects and names
+    # points; the planes are fitted to the points as given (p), so that the frame does not depend
+    # on the nominal pose's rounding.
+    p = np.ascontiguousarray(pts.T)
+    rot_n = nom[:3, :3]
+    q = rot_n.T @ (p - nom[:3, 3:4])
     in_box = np.ones(q.shape[1], dtype=bool)
     for row in q:
         in_box &= (row >= -e - m) & (row <= m)
@@ -241,38 +245,38 @@ def fit_block_frame(
             f"of the nominal block (need {3 * params.min_face_points}); the block is out of view or the "
             "nominal pose is wrong"
         )
-    q = q[:, in_box]
-    keep = _remove_outliers(q, params)
-    q = q[:, keep]
+    keep = _remove_outliers(q[:, in_box], params)
+    sel = np.flatnonzero(in_box)[keep]
+    p, q = p[:, sel], q[:, sel]
     _seed_o3d(rng)
     dist = np.abs(q)
     nearest = np.where(
         dist[0] < dist[1], np.where(dist[0] < dist[2], 0, 2), np.where(dist[1] < dist[2], 1, 2)
     )
     nearest[np.minimum(np.minimum(dist[0], dist[1]), dist[2]) >= m] = 3
-    seeds = [_fit_face(q[:, nearest == k], FACES[k], params) for k in range(3)]
+    seeds = [_fit_face(p[:, nearest == k], FACES[k], params) for k in range(3)]
     normals = np.array([s[0] for s in seeds])
     offsets = np.array([s[1] for s in seeds])
-    within = np.abs(normals @ q - offsets[:, None]) < np.array([s[2] for s in seeds])[:, None]
+    within = np.abs(normals @ p - offsets[:, None]) < np.array([s[2] for s in seeds])[:, None]
     owner = np.where(within[0], 0, np.where(within[1], 1, np.where(within[2], 2, 3)))
     owner[within.sum(axis=0) > 1] = 3  # on two planes: an edge point, left out
     counts, rms = np.zeros(3, dtype=int), np.zeros(3)
     for k in range(3):
-        face = q[:, owner == k]
+        face = p[:, owner == k]
         if face.shape[1] < params.min_face_points:
             raise ScanError(
                 f"face {FACES[k]} keeps only {face.shape[1]} points after segmentation (need "
                 f"min_face_points = {params.min_face_points})"
             )
         normal, centroid = _plane(face)
-        normal = normal if normal[k] > 0 else -normal
-        angle = np.degrees(np.arccos(np.clip(normal[k], -1, 1)))
+        normal = normal if normal @ rot_n[:, k] > 0 else -normal
+        angle = np.degrees(np.arccos(np.clip(normal @ rot_n[:, k], -1, 1)))
         if angle > params.angle_tolerance_deg:
             raise ScanError(
                 f"face {FACES[k]}: fitted normal is {angle:.1f} deg from the nominal axis (> "
                 f"angle_tolerance_deg = {params.angle_tolerance_deg:g})"
             )
-        extent = min(np.ptp(face[j]) for j in range(3) if j != k)
+        extent = min(np.ptp(q[j, owner == k]) for j in range(3) if j != k)
         if extent < params.min_extent_fraction * e:
             raise ScanError(
                 f"face {FACES[k]} spans only {extent * 1e3:.1f} mm of the {e * 1e3:g} mm block edge "
@@ -289,13 +293,11 @@ def fit_block_frame(
             f"(> max_skew_deg = {params.max_skew_deg:g}); segmentation picked clutter"
         )
     u, _, vt = np.linalg.svd(normals.T)
-    local = np.eye(4)
-    local[:3, :3] = u @ vt  # nearest rotation to [n_x n_y n_z]; det > 0 since all are near the nominal
-    local[:3, 3] = np.linalg.solve(normals, offsets)
-    normals_out = normals @ nom[:3, :3].T  # back to the cloud's frame
-    offsets_out = offsets + normals_out @ nom[:3, 3]
+    pose = np.eye(4)
+    pose[:3, :3] = u @ vt  # nearest rotation to [n_x n_y n_z]; det > 0 since all are near the nominal
+    pose[:3, 3] = np.linalg.solve(normals, offsets)  # the corner where the three planes meet
     removed = int(len(keep) - keep.sum())
-    return BlockFrame(nom @ local, normals_out, offsets_out, counts, rms, skew, len(pts), n_box, removed)
+    return BlockFrame(pose, normals, offsets, counts, rms, skew, len(pts), n_box, removed)
 
 
 # ---------------------------------------------------------------------- displacement
