@@ -105,7 +105,12 @@ class TestRecord:
         ]
         scanner = [*self.scanner_pose[:3, 3], *rotation_vector(self.scanner_pose[:3, :3])]
         numbers = [*self.q_deg, *self.wrench_unloaded, *self.wrench_loaded, *scanner]
-        return [self.test_id, self.group, *[f"{v:.15g}" for v in numbers], *rel]
+        return [self.test_id, self.group, *[repr(float(v)) for v in numbers], *rel]  # round-trip exact
+
+
+def scanner_pose_as_recorded(pose: np.ndarray) -> np.ndarray:
+    """The scanner pose exactly as tests.csv stores it (position + rotation vector round trip)."""
+    return homogeneous(matrix_from_rotation_vector(rotation_vector(pose[:3, :3])), pose[:3, 3])
 
 
 def _read_json(path: Path, what: str) -> dict:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .analysis import TestMeasurement, identify_measurements, measure_arrays
-from .dataset import DatasetSetup, TestRecord
+from .dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
 from .experiment import dataset_setup, test_rng
 from .identify import IdentificationResult
 from .kinematics import ArmKinematics
@@ -83,7 +83,7 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
                 group=group,
                 index=i,
                 q=np.asarray(q),
-                scanner_pose=scanner.pose_world,
+                scanner_pose=scanner_pose_as_recorded(scanner.pose_world),
                 hits_unloaded=hits0,
                 hits_loaded=hits1,
                 wrench_unloaded=s0.sensor_wrench,
