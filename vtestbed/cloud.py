@@ -48,7 +48,8 @@ class FitParams:
     ransac_threshold_m, ransac_iterations : float, int
         open3d ``segment_plane`` inlier distance [m] and iterations per face.
     inlier_sigmas, min_threshold_m, refine_iterations : float, float, int
-        Least-squares refinement: inliers within ``max(inlier_sigmas * 1.4826 * MAD, min_threshold_m)``
+        Least-squares refinement: inliers within ``max(inlier_sigmas * sigma, min_threshold_m)`` with
+        the robust ``sigma = 1.4826 * median(|residual|)``
         of their own plane, iterated (at most ``refine_iterations`` times) until the set is stable.
     min_face_points : int
         Fewest points a face must keep.
@@ -144,9 +145,10 @@ def _plane(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vecs[:, 0], centroid
 
 
-def _threshold(residual: np.ndarray, params: FitParams) -> float:
-    mad = np.median(np.abs(residual - np.median(residual)))
-    return max(params.inlier_sigmas * 1.4826 * mad, params.min_threshold_m)
+def _threshold(abs_residual: np.ndarray, params: FitParams) -> float:
+    """Inlier threshold from the median absolute residual about the fitted plane (robust sigma)."""
+    sigma = 1.4826 * np.median(abs_residual)
+    return max(params.inlier_sigmas * sigma, params.min_threshold_m)
 
 
 def _seed_o3d(rng: np.random.Generator | None) -> None:
