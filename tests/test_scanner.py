@@ -127,7 +127,7 @@ def test_fewer_than_three_faces_is_refused(scene):
 
 
 def test_datasheet_limits_are_enforced(scene):
-    _, _, scanner, _ = scene
+    _, _, scanner, hits = scene
     pose = scanner.pose_world
     with pytest.raises(OutOfRangeError, match="point_spacing_m .* finer than one camera pixel"):
         Scanner(pose_world=pose, point_spacing_m=0.05e-3)  # 450 mm / 2592 px = 0.17 mm
@@ -137,6 +137,8 @@ def test_datasheet_limits_are_enforced(scene):
         Scanner(pose_world=np.eye(3))
     with pytest.raises(OutOfRangeError, match="outlier_fraction"):
         ScanNoise(outlier_fraction=0.9)
+    with pytest.raises(OutOfRangeError, match="rng must be a numpy.random.Generator, got int"):
+        ScanNoise().apply(hits, 42)
 
 
 def test_range_noise_has_the_documented_size(scene):

@@ -454,8 +454,6 @@ class Scanner:
         rng: np.random.Generator | None,
         noise: ScanNoise | None = None,
     ) -> np.ndarray:
-        """One scan: (N, 3) points [m] in the scanner frame. ``noise=None`` or ``rng=None``: perfect."""
+        """One scan: (N, 3) points [m] in the scanner frame; ``noise=None`` is a perfect scanner."""
         hits = self.cast(model, data)
-        if noise is None or rng is None:
-            return hits.points_m.copy()
-        return noise.apply(hits, rng)
+        return hits.points_m.copy() if noise is None else noise.apply(hits, rng)
