@@ -27,6 +27,9 @@ def small_scenario(n_tests=8, n_val=2, seed=7):
     data["poses"]["angles_deg"] = data["poses"]["angles_deg"][:n_tests]
     for key in ("hook", "anchor"):
         data["load"][key] = data["load"][key][:n_tests]
+    if n_val == 0:
+        del data["validation"]
+        return parse_scenario(data, "small.toml")
     data["validation"]["angles_deg"] = data["validation"]["angles_deg"][:n_val]
     for key in ("hook", "anchor"):
         data["validation"][key] = data["validation"][key][:n_val]
@@ -93,6 +96,16 @@ def test_interrupted_simulation_resumes_without_loss_or_duplicates(small_run, tm
     assert (tmp_path / "tests.csv").read_text() == reference.replace(str(out / "dataset"), str(tmp_path))
     ids = [r.test_id for r in read_tests(tmp_path)]
     assert len(ids) == len(set(ids)) == 10
+
+
+def test_relative_output_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scenario = small_scenario(n_tests=2, n_val=0)
+    simulate(scenario, Path("runs") / "rel")
+    rows = (tmp_path / "runs" / "rel" / "tests.csv").read_text().splitlines()
+    assert rows[1].endswith("clouds/T001_unloaded.ply,clouds/T001_loaded.ply")
+    _, measurements, _ = identify_dataset(Path("runs") / "rel")
+    assert len(measurements) == 2
 
 
 def _copy_dataset(src: Path, dst: Path) -> Path:
