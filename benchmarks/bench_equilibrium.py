@@ -5,20 +5,10 @@ Run: .venv/bin/python benchmarks/bench_equilibrium.py
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
+from _timing import median_time  # benchmarks/ is on sys.path when run as a script
 
 from vtestbed.rig import Rig
-
-
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def main() -> None:

@@ -19,8 +19,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         subprocess.run(
-            [sys.executable, "-m", "vtestbed.cli", "run", str(ROOT / "scenarios" / "kr60_paper.toml"), "--out", tmp,
-             "--quiet"],
+            [
+                sys.executable,
+                "-m",
+                "vtestbed.cli",
+                "run",
+                str(ROOT / "scenarios" / "kr60_paper.toml"),
+                "--out",
+                tmp,
+                "--quiet",
+            ],
             check=True,
             stdout=subprocess.DEVNULL,
         )
@@ -40,7 +48,9 @@ def main() -> None:
     for key, label in labels.items():
         print(f"  {key:9s}{t[key]:7.2f} s  {label}")
     rest = wall - sum(t[k] for k in labels)
-    print(f"  {'other':9s}{rest:7.2f} s  interpreter start, imports (open3d, mujoco, pinocchio), model compile")
+    print(
+        f"  {'other':9s}{rest:7.2f} s  interpreter start, imports (open3d, mujoco, pinocchio), model compile"
+    )
 
 
 if __name__ == "__main__":

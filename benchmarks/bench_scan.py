@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import os
 
+from _timing import median_time  # benchmarks/ is on sys.path when run as a script
+
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "TBB_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -24,15 +25,6 @@ from vtestbed.scanner import BLOCK_GEOM, Scanner, ScanNoise  # noqa: E402
 from vtestbed.transforms import invert  # noqa: E402
 
 SPACING_M = 0.47e-3  # about 50k points on the block at 0.6 m
-
-
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def main() -> None:

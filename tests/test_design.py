@@ -153,14 +153,18 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
     for seed in range(30):
         ms = measure_trial(prepared, 1000 + seed)
         errors.append(np.array([m.displacement for m in ms]) - truth)
-        res = identify([m.jacobian for m in ms], [m.wrench for m in ms], [m.displacement for m in ms], method="fgls")
+        res = identify(
+            [m.jacobian for m in ms], [m.wrench for m in ms], [m.displacement for m in ms], method="fgls"
+        )
         estimates.append(res.stiffness)
     errors = np.concatenate(errors)
     sigma_p, sigma_r = np.sqrt(np.mean(errors[:, :3] ** 2)), np.sqrt(np.mean(errors[:, 3:] ** 2))
     predicted = design.evaluate(chosen, robot.stiffness_true, sigma_p, sigma_r).stiffness_std
     ratio = np.std(estimates, axis=0, ddof=1) / predicted
-    print(f"\nscan displacement noise: {sigma_p * 1e6:.2f} um, {sigma_r * 1e6:.2f} urad; "
-          f"virtual-lab scatter / design prediction per joint: {np.round(ratio, 2)}")
+    print(
+        f"\nscan displacement noise: {sigma_p * 1e6:.2f} um, {sigma_r * 1e6:.2f} urad; "
+        f"virtual-lab scatter / design prediction per joint: {np.round(ratio, 2)}"
+    )
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5))
 
 

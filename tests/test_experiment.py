@@ -130,7 +130,9 @@ def test_broken_datasets_get_clear_errors(small_run, tmp_path):
     src = small_run[0] / "dataset"
     d = _copy_dataset(src, tmp_path / "missing_cloud")
     (d / "clouds" / "T003_loaded.ply").unlink()
-    with pytest.raises(DatasetError, match=r"test 'T003'.*T003_loaded.ply is missing \(10 tests need 20 clouds, 19 found"):
+    with pytest.raises(
+        DatasetError, match=r"test 'T003'.*T003_loaded.ply is missing \(10 tests need 20 clouds, 19 found"
+    ):
         identify_dataset(d)
 
     d = _copy_dataset(src, tmp_path / "no_block")
@@ -141,13 +143,18 @@ def test_broken_datasets_get_clear_errors(small_run, tmp_path):
 
     d = _copy_dataset(src, tmp_path / "overload")
     _edit_csv(d / "tests.csv", lambda rows: rows[4].update({"loaded_Tz_Nm": "45.0"}))
-    with pytest.raises(DatasetError, match=r"test 'T005'.*loaded wrench: Tz = 45.00 N\*m is outside the measuring range \[-30, 30\]"):
+    with pytest.raises(
+        DatasetError,
+        match=r"test 'T005'.*loaded wrench: Tz = 45.00 N\*m is outside the measuring range \[-30, 30\]",
+    ):
         identify_dataset(d)
 
     d = _copy_dataset(src, tmp_path / "slack")
+
     def slack(rows):
         for c in ("Fx_N", "Fy_N", "Fz_N", "Tx_Nm", "Ty_Nm", "Tz_Nm"):
             rows[1][f"loaded_{c}"] = rows[1][f"unloaded_{c}"]
+
     _edit_csv(d / "tests.csv", slack)
     with pytest.raises(Exception, match=r"tests \[1\] have a force change below 1 N: the wire was slack"):
         identify_dataset(d)

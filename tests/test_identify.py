@@ -61,7 +61,9 @@ def test_wls_with_the_true_covariance_matches_its_prediction(robot, lab):
     cov = np.diag(SIGMA**2)
     est = []
     for _ in range(300):
-        res = identify(jac, wrench, d0 + rng.normal(size=d0.shape) * SIGMA, method="wls", displacement_cov=cov)
+        res = identify(
+            jac, wrench, d0 + rng.normal(size=d0.shape) * SIGMA, method="wls", displacement_cov=cov
+        )
         est.append(res.compliance)
     # closed form: cov(c) = (A^T W A)^-1
     a = stack(jac, wrench)
@@ -80,7 +82,9 @@ def test_error_shrinks_as_one_over_sqrt_n(robot, lab):
     spread = {}
     for n in (10, 40):
         errs = [
-            identify(jac[:n], wrench[:n], d0[:n] + rng.normal(size=(n, 6)) * SIGMA).stiffness / robot.stiffness_true - 1
+            identify(jac[:n], wrench[:n], d0[:n] + rng.normal(size=(n, 6)) * SIGMA).stiffness
+            / robot.stiffness_true
+            - 1
             for _ in range(300)
         ]
         spread[n] = np.std(errs, axis=0)

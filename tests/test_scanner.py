@@ -236,4 +236,4 @@ def test_scan_command_writes_clouds_and_matching_displacements(tmp_path, capsys)
     assert len(points) == result["clouds"]["points"][1] > 40000
     assert "measured" in capsys.readouterr().out
     assert main(["scan", "--out", str(tmp_path), "--view", "1,1"]) == 2
-    assert "--view must have 3 components" in capsys.readouterr().err
+    assert "--view must be 3 finite numbers" in capsys.readouterr().err

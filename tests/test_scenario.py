@@ -54,7 +54,11 @@ def _broken(data, path, value):
         (("scanner", "distance_m"), 2.0, r"scanner.distance_m: = 2 is outside the valid range \[0.1, 1.25\]"),
         (("scanner", "noise"), "yes", r"scanner.noise: must be true or false"),
         (("force_sensor", "noise_std"), [0.1] * 5, r"force_sensor.noise_std: must be a list of 6 numbers"),
-        (("identification", "method"), "lasso", r"identification.method: 'lasso' is not one of ols, wls, fgls"),
+        (
+            ("identification", "method"),
+            "lasso",
+            r"identification.method: 'lasso' is not one of ols, wls, fgls",
+        ),
         (("seed",), -1, r"seed: must be a non-negative integer"),
         (("robot",), "ur5", r"robot: unknown robot 'ur5'; valid names: kuka_kr60_3"),
         (("name",), KeyError, r"name: is required"),

@@ -107,5 +107,3 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
-
-

@@ -11,29 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from . import design, influence, poses, regions
-from .cli_robot import parse_angles_deg
+from .cli_robot import parse_angles_deg, parse_numbers
 from .errors import OutOfRangeError
 from .robots import load_robot
 
 DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in front of the robot
 
 
-def _floats(text: str, field: str, count: int, unit: str) -> np.ndarray:
-    try:
-        values = np.array([float(x) for x in text.split(",")])
-    except ValueError:
-        raise OutOfRangeError(
-            f"{field} must be {count} comma-separated numbers [{unit}], got {text!r}"
-        ) from None
-    if values.size != count or not np.all(np.isfinite(values)):
-        raise OutOfRangeError(f"{field} must be {count} finite numbers [{unit}], got {text!r}")
-    return values
-
-
 def _point(text: str):
     if text in poses.POINTS:
         return text
-    return poses.reference_offset(_floats(text, "--point", 3, "m"))
+    return poses.reference_offset(parse_numbers(text, "--point", 3, "m"))
 
 
 def _pose(robot, args, default=None):
@@ -67,7 +55,7 @@ def _optimum(robot, args) -> poses.Optimum:
 
 
 def _constraints(args) -> regions.PoseConstraints:
-    box = _floats(args.box, "--box", 6, "m") if args.box else None
+    box = parse_numbers(args.box, "--box", 6, "m") if args.box else None
     return regions.PoseConstraints(
         point="block", min_height=args.min_height, box_min=None if box is None else tuple(box[:3]),
         box_max=None if box is None else tuple(box[3:]),
@@ -269,7 +257,7 @@ def _cmd_design(args) -> int:
     hooks = args.hooks.split(",") if args.hooks else None
     anchors = args.anchors.split(",") if args.anchors else None
     cands = design.candidate_tests(robot, q, hooks, anchors, tension=args.tension)
-    prior = _floats(args.stiffness_prior_nmm, "--stiffness-prior-nmm", 6, "N*mm/rad") / 1e3
+    prior = parse_numbers(args.stiffness_prior_nmm, "--stiffness-prior-nmm", 6, "N*mm/rad") / 1e3
     sel = design.select_tests(cands, args.tests, prior, criterion=args.criterion, method=args.method,
                               sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
     data = {"candidates": len(cands), "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,

@@ -14,17 +14,22 @@ from .transforms import displacement
 DEFAULT_POSE_DEG = "0,-60,-20,30,50,45"
 
 
-def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
-    """Parse ``"a,b,c,d,e,f"`` (degrees) into radians, with a clear error."""
+def parse_numbers(text: str, field: str, count: int, unit: str) -> np.ndarray:
+    """Parse ``"a,b,c"`` into ``count`` finite numbers, with an error naming ``field``."""
     try:
-        values = [float(x) for x in text.split(",")]
+        values = np.array([float(x) for x in text.split(",")])
     except ValueError:
         raise OutOfRangeError(
-            f"{field} must be {count} comma-separated numbers in degrees, got {text!r}"
+            f"{field} must be {count} comma-separated numbers [{unit}], got {text!r}"
         ) from None
-    if len(values) != count:
-        raise OutOfRangeError(f"{field} must have {count} angles, got {len(values)}: {text!r}")
-    return np.radians(values)
+    if values.size != count or not np.all(np.isfinite(values)):
+        raise OutOfRangeError(f"{field} must be {count} finite numbers [{unit}], got {text!r}")
+    return values
+
+
+def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
+    """Parse ``"a,b,c,d,e,f"`` (degrees) into radians, with a clear error."""
+    return np.radians(parse_numbers(text, field, count, "deg"))
 
 
 def pose_from_args(robot, args) -> np.ndarray:

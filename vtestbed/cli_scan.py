@@ -8,22 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_robot import add_pose_arguments, pose_from_args
-from .errors import OutOfRangeError
+from .cli_robot import add_pose_arguments, parse_numbers, pose_from_args
 
 DEFAULT_VIEW = "1,1,1"
-
-
-def _parse_view(text: str) -> np.ndarray:
-    try:
-        view = np.array([float(x) for x in text.split(",")])
-    except ValueError:
-        raise OutOfRangeError(
-            f"--view must be 3 comma-separated numbers (a direction in the block frame), got {text!r}"
-        ) from None
-    if view.shape != (3,):
-        raise OutOfRangeError(f"--view must have 3 components, got {len(view)}: {text!r}")
-    return view
 
 
 def _cmd_scan(args) -> int:
@@ -49,7 +36,7 @@ def _cmd_scan(args) -> int:
         rig.lab,
         s0.block_pose,
         distance_m=args.distance_mm * 1e-3,
-        view_direction_block=_parse_view(args.view),
+        view_direction_block=parse_numbers(args.view, "--view", 3, "direction in the block frame"),
         point_spacing_m=args.spacing_mm * 1e-3,
     )
     cloud0 = scanner.scan(rig.model, rig.data, rng, noise)

@@ -43,7 +43,14 @@ def pose_columns(dof: int = 6) -> list[str]:
 # The scanner's pose in the robot base frame (position, rotation vector). It only locates the
 # block in the cloud (cloud.FitParams.crop_margin_m = 10 mm): the block's predicted position in
 # the scanner frame must be right to a few mm, i.e. the pose to ~3 mm and ~0.3 deg at 0.6 m.
-SCANNER_COLUMNS = ["scanner_x_m", "scanner_y_m", "scanner_z_m", "scanner_rx_rad", "scanner_ry_rad", "scanner_rz_rad"]
+SCANNER_COLUMNS = [
+    "scanner_x_m",
+    "scanner_y_m",
+    "scanner_z_m",
+    "scanner_rx_rad",
+    "scanner_ry_rad",
+    "scanner_rz_rad",
+]
 COLUMNS = [
     "test_id",
     "group",

@@ -146,11 +146,15 @@ def identify(
             "(no load); tighten it or drop those tests"
         )
     if 6 * n_tests < n:
-        raise OutOfRangeError(f"n_tests = {n_tests} gives {6 * n_tests} equations for {n} unknowns; need >= 1 test")
+        raise OutOfRangeError(
+            f"n_tests = {n_tests} gives {6 * n_tests} equations for {n} unknowns; need >= 1 test"
+        )
     for t, jac in enumerate(np.asarray(jacobians)):
         s = np.linalg.svd(jac, compute_uv=False)
         if s[-1] < 1e-9 * s[0]:
-            raise SingularPoseError(f"test {t}: the Jacobian is singular (sigma_min/sigma_max = {s[-1] / s[0]:.1e})")
+            raise SingularPoseError(
+                f"test {t}: the Jacobian is singular (sigma_min/sigma_max = {s[-1] / s[0]:.1e})"
+            )
     d_flat = d.reshape(-1)
     if method == "wls":
         if displacement_cov is None:
@@ -200,7 +204,9 @@ def identify(
         bad = [names[i] for i in np.flatnonzero(c <= 0)]
         notes.append(f"non-positive compliance for {', '.join(bad)}: not identifiable from these tests")
     if 6 * n_tests == n:
-        notes.append("one test gives as many equations as unknowns: no residual, so no uncertainty (std = nan)")
+        notes.append(
+            "one test gives as many equations as unknowns: no residual, so no uncertainty (std = nan)"
+        )
         cov_c = np.full_like(cov_c, np.nan)
     for note in notes:
         warnings.warn(note, stacklevel=2)
