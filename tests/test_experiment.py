@@ -98,6 +98,16 @@ def test_interrupted_simulation_resumes_without_loss_or_duplicates(small_run, tm
     assert len(ids) == len(set(ids)) == 10
 
 
+def test_a_folder_of_another_scenario_is_refused_or_replaced(tmp_path):
+    simulate(small_scenario(n_tests=2, n_val=0), tmp_path)
+    other = small_scenario(n_tests=2, n_val=0, seed=99)
+    with pytest.raises(DatasetError, match="holds a dataset of another scenario"):
+        simulate(other, tmp_path)
+    simulate(other, tmp_path, replace_stale=True)
+    assert json.loads((tmp_path / "truth.json").read_text())["seed"] == 99
+    assert len(read_tests(tmp_path)) == 2
+
+
 def test_relative_output_folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     scenario = small_scenario(n_tests=2, n_val=0)

@@ -68,7 +68,13 @@ def _cmd_run(args) -> int:
     from .scenario import load_scenario
 
     out = Path(args.out)
-    summary = run(load_scenario(args.scenario), out, progress=not args.quiet, figures=not args.no_figures)
+    summary = run(
+        load_scenario(args.scenario),
+        out,
+        progress=not args.quiet,
+        figures=not args.no_figures,
+        replace_stale=getattr(args, "replace_stale", False),
+    )
     _print_run(summary, out)
     return 0
 
@@ -76,6 +82,7 @@ def _cmd_run(args) -> int:
 def _cmd_demo(args) -> int:
     args.scenario = SCENARIOS_DIR / "kr60_paper.toml"
     args.no_figures = False
+    args.replace_stale = True  # the demo's own folder: a dataset of an older scenario is replaced
     return _cmd_run(args)
 
 

@@ -77,10 +77,22 @@ def _write_json_atomic(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
-def _start_truth(out: Path, scenario: Scenario, rig: Rig) -> dict:
+def _remove_dataset(out: Path) -> None:
+    """Delete the files a simulation writes in ``out`` (and nothing else)."""
+    import shutil
+
+    for name in (TRUTH_FILE, "tests.csv", "setup.json"):
+        (out / name).unlink(missing_ok=True)
+    shutil.rmtree(out / CLOUD_DIR, ignore_errors=True)
+
+
+def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = False) -> dict:
     truth_path = out / TRUTH_FILE
     if truth_path.exists():
         truth = json.loads(truth_path.read_text())
+        if truth.get("scenario_fingerprint") != scenario.fingerprint and replace_stale:
+            _remove_dataset(out)
+            return _start_truth(out, scenario, rig)
         if truth.get("scenario_fingerprint") != scenario.fingerprint:
             raise DatasetError(
                 f"{out} holds a dataset of another scenario (fingerprint {truth.get('scenario_fingerprint')} "
@@ -100,18 +112,23 @@ def _start_truth(out: Path, scenario: Scenario, rig: Rig) -> dict:
 
 
 def simulate(
-    scenario: Scenario, out: str | Path, progress: bool = False, timings: Timings | None = None
+    scenario: Scenario,
+    out: str | Path,
+    progress: bool = False,
+    timings: Timings | None = None,
+    replace_stale: bool = False,
 ) -> Path:
     """Run every test of ``scenario`` in the truth world and write the dataset to ``out``.
 
-    Finished tests are kept: rerunning into the same folder does only what is missing.
+    Finished tests are kept: rerunning into the same folder does only what is missing. A folder
+    holding another scenario's dataset is refused, or replaced with ``replace_stale``.
     """
     out = Path(out)
     timings = timings or Timings()
     lab = LabSetup()
     rig = Rig(scenario.robot(), lab)
     out.mkdir(parents=True, exist_ok=True)
-    truth = _start_truth(out, scenario, rig)
+    truth = _start_truth(out, scenario, rig, replace_stale)
     write_setup(out, dataset_setup(scenario, lab))
     noise = ScanNoise(**scenario.scanner.noise_params) if scenario.scanner.noise else None
     sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
@@ -210,14 +227,20 @@ def identify_dataset(
     return setup, measurements, result
 
 
-def run(scenario: Scenario, out: str | Path, progress: bool = False, figures: bool = True) -> dict:
+def run(
+    scenario: Scenario,
+    out: str | Path,
+    progress: bool = False,
+    figures: bool = True,
+    replace_stale: bool = False,
+) -> dict:
     """simulate + identify + compare; writes ``out/result.json`` and figures; returns the result."""
     from . import report
     from .dataset import read_truth
 
     out = Path(out)
     timings = Timings()
-    simulate(scenario, out / "dataset", progress=progress, timings=timings)
+    simulate(scenario, out / "dataset", progress=progress, timings=timings, replace_stale=replace_stale)
     setup, measurements, result = identify_dataset(out / "dataset", scenario.method, progress, timings)
     t0 = time.perf_counter()
     truth = read_truth(out / "dataset")
