@@ -14,6 +14,7 @@ COMMAND_MODULES = [
     "vtestbed.cli_experiment",
     "vtestbed.cli_scan",
     "vtestbed.cli_poses",
+    "vtestbed.cli_sweep",
 ]
 
 

@@ -1,0 +1,403 @@
+"""Run a Monte Carlo campaign: local processes or a Dask cluster, Parquet results, resumable.
+
+:func:`sweep` validates the campaign, draws the pose sets once (recorded in
+``DIR/campaign.json``), splits the missing trials into batches of one cell and runs them:
+in this process (``workers=1``), on ``workers`` local processes (``spawn`` context), or on a
+Dask cluster (``scheduler`` = address or :class:`distributed.Client`). Every finished batch is
+written at once as ``DIR/trials/part-*.parquet`` (temporary file + ``os.replace``), one row per
+trial with its parameters, seed, estimates, predicted std and errors. An interrupted campaign
+(Ctrl-C, a killed process) keeps every finished batch; a rerun with the same campaign skips the
+trials already on disk (rows are keyed by ``trial_key`` and deduplicated on reading).
+
+Speed: a worker prepares the physics of a test list once (equilibria and ray casts,
+:func:`vtestbed.montecarlo.prepare`) and keeps it in a small cache keyed by the test list, so
+every cell on that list (any noise level, test count or estimator) reuses it; each trial draws
+its own noise and runs the full researcher pipeline (cloud fits, identification).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import montecarlo
+from .campaign import AXES, Campaign, Cell, load_campaign
+from .errors import VtestbedError
+from .lab import LabSetup
+from .posesets import TestPlan, build_plans, plan_quality
+from .scanner import ScanNoise
+from .scenario import Scenario
+from .sensors import ForceTorqueSensor
+
+MANIFEST = "campaign.json"
+TRIALS_DIR = "trials"
+CACHE_SIZE = 2  # prepared test lists kept per worker process
+SECONDS_PER_TEST = 0.065  # one test of one trial (two noisy clouds, two fits), for batch sizing
+TARGET_BATCH_S = 2.0
+COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+
+
+class SweepError(VtestbedError, ValueError):
+    """A results folder that belongs to another campaign, or a failed execution setting."""
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Trials of one cell: everything a worker needs (small; the physics is prepared there)."""
+
+    scenario: Scenario  # the base scenario
+    plan: TestPlan
+    cell: Cell
+    noise: ScanNoise | None
+    ft_noise_std: tuple[float, ...]
+    trials: tuple[int, ...]
+    seeds: tuple[int, ...]
+
+    @property
+    def name(self) -> str:
+        cell = hashlib.sha256(self.cell.key.encode()).hexdigest()[:12]
+        return f"part-{cell}-{self.trials[0]:06d}-{self.trials[-1]:06d}-{len(self.trials)}"
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    rows: list
+    prepare_s: float  # s spent preparing physics for this batch (0 when cached)
+    compute_s: float  # s spent on the trials
+    pid: int
+
+
+@dataclass
+class SweepStats:
+    """Where the time went (for benchmarks): seconds and counts."""
+
+    wall_s: float = 0.0
+    generate_s: float = 0.0
+    prepare_s: float = 0.0
+    compute_s: float = 0.0
+    trials_run: int = 0
+    tests_run: int = 0
+    batches: int = 0
+    pids: set = field(default_factory=set)
+
+
+_CACHE: OrderedDict = OrderedDict()
+_LOCK = threading.Lock()
+
+
+def _prepared(batch: Batch) -> tuple[montecarlo.PreparedScenario, float]:
+    key = batch.scenario.fingerprint + batch.plan.digest
+    with _LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key], 0.0
+        t0 = time.perf_counter()
+        prepared = montecarlo.prepare(batch.plan.scenario(batch.scenario))
+        _CACHE[key] = prepared
+        while len(_CACHE) > CACHE_SIZE:
+            _CACHE.popitem(last=False)
+        return prepared, time.perf_counter() - t0
+
+
+def _row(
+    batch: Batch, trial: int, seed: int, k_true: np.ndarray, names, result=None, error: str = ""
+) -> dict:
+    cell = batch.cell
+    row = {"trial_key": f"{cell.key};trial={trial}", "cell_key": cell.key, **cell.params(), "trial": trial,
+           "seed": seed, "status": "ok" if result is not None else "failed", "error": error}  # fmt: skip
+    nan = np.full(len(names), np.nan)
+    k = result.stiffness if result is not None else nan
+    k_std = result.stiffness_std if result is not None else nan
+    for j, name in enumerate(names):
+        row[f"k_{name}"] = float(k[j])
+        row[f"k_std_{name}"] = float(k_std[j])
+        row[f"k_true_{name}"] = float(k_true[j])
+        row[f"err_{name}"] = float(k[j] / k_true[j] - 1.0)
+    res_std = result.component_std if result is not None else np.full(6, np.nan)
+    row.update({f"res_std_{c}": float(v) for c, v in zip(COMPONENTS, res_std)})
+    row["condition_number"] = float(result.condition_number) if result is not None else np.nan
+    row["chi2_reduced"] = float(result.chi2_reduced) if result is not None else np.nan
+    row["n_warnings"] = len(result.warnings) if result is not None else 0
+    return row
+
+
+def run_batch(batch: Batch) -> BatchResult:
+    """Run the trials of one batch (in a worker): prepared physics from the cache, noise per trial."""
+    prepared, prep_s = _prepared(batch)
+    names = batch.scenario.robot().joint_names
+    sensor = ForceTorqueSensor(LabSetup().sensor, batch.ft_noise_std, batch.scenario.force_sensor.bias)
+    t0 = time.perf_counter()
+    rows = []
+    for trial, seed in zip(batch.trials, batch.seeds):
+        try:
+            result = montecarlo.trial(
+                prepared, seed, batch.cell.n_tests, batch.cell.method, batch.noise, sensor
+            )
+            rows.append(_row(batch, trial, seed, prepared.stiffness_true, names, result))
+        except VtestbedError as exc:
+            rows.append(
+                _row(batch, trial, seed, prepared.stiffness_true, names, error=f"{type(exc).__name__}: {exc}")
+            )
+    return BatchResult(rows, prep_s, time.perf_counter() - t0, os.getpid())
+
+
+# ---------------------------------------------------------------------- results on disk
+def _write_atomic(path: Path, write) -> None:
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def read_results(out: str | Path) -> pd.DataFrame:
+    """Every trial in ``out/trials`` (one row per trial key; duplicates dropped)."""
+    parts = sorted((Path(out) / TRIALS_DIR).glob("part-*.parquet"))
+    if not parts:
+        return pd.DataFrame(columns=["trial_key"])
+    df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    df = df.sort_values("trial_key", kind="stable").drop_duplicates("trial_key", keep="first")
+    return df.sort_values([*AXES, "trial"], kind="stable").reset_index(drop=True)
+
+
+def code_fingerprint() -> str:
+    """Hash of the source that shapes a trial's numbers (package modules but the CLI and reports,
+    and the robot model files): results of different code are not mixed in one folder."""
+    from .robots import MODELS_DIR
+
+    package = Path(__file__).resolve().parent
+    skip = ("cli", "report", "sweep_report")
+    files = [p for p in sorted(package.glob("*.py")) if not p.stem.startswith(skip)]
+    files += sorted(MODELS_DIR.glob("*/robot.toml"))
+    h = hashlib.sha256()
+    for p in files:
+        h.update(p.name.encode() + b"\0" + p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dict:
+    path = out / MANIFEST
+    code = code_fingerprint()
+    if path.exists():
+        manifest = json.loads(path.read_text())
+        if manifest.get("fingerprint") != campaign.fingerprint:
+            raise SweepError(
+                f"{out} holds results of another campaign (fingerprint {manifest.get('fingerprint')} != "
+                f"{campaign.fingerprint}: base scenario, seed, pairing or pose-set options differ); "
+                "choose a new --out folder"
+            )
+        if manifest.get("code_fingerprint") != code and not allow_code_change:
+            raise SweepError(
+                f"{out} holds results of other vtestbed code (code fingerprint {manifest.get('code_fingerprint')} "
+                f"!= {code}: the pipeline's source or the robot model changed since); choose a new --out "
+                "folder, or allow_code_change=True (--allow-code-change) to mix them knowingly"
+            )
+        return manifest
+    robot = campaign.scenario.robot()
+    return {"format": 1, "fingerprint": campaign.fingerprint, "code_fingerprint": code, "scenario": campaign.scenario.name,
+            "joint_names": list(robot.joint_names), "stiffness_true_Nm_per_rad": robot.stiffness_true.tolist(),
+            "campaign": campaign.to_dict(), "plans": {}, "plan_quality": {}}  # fmt: skip
+
+
+def _plans(out: Path, campaign: Campaign, manifest: dict, log) -> dict[str, TestPlan]:
+    keys = {campaign.plan_key(c) for c in campaign.cells()}
+    missing = sorted(keys - set(manifest["plans"]))
+    if missing:
+        for key, plan in build_plans(campaign, missing, progress=log).items():
+            manifest["plans"][key] = plan.to_dict()
+    plans = {k: TestPlan.from_dict(manifest["plans"][k]) for k in keys}
+    robot = campaign.scenario.robot()
+    for c in campaign.cells():
+        qkey = f"{c.pose_set}:{c.n_tests}"
+        if qkey not in manifest["plan_quality"]:
+            manifest["plan_quality"][qkey] = plan_quality(robot, plans[campaign.plan_key(c)], c.n_tests)
+    manifest["campaign"] = campaign.to_dict()
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomic(out / MANIFEST, lambda p: p.write_text(json.dumps(manifest, indent=1)))
+    return plans
+
+
+def _batches(campaign: Campaign, plans, done: set, workers: int, batch_trials: int | None) -> list[Batch]:
+    todo = []
+    for cell in campaign.cells():
+        missing = [t for t in range(campaign.trials) if f"{cell.key};trial={t}" not in done]
+        if missing:
+            todo.append((cell, missing))
+    total = sum(len(m) for _, m in todo)
+    out = []
+    for cell, missing in todo:
+        size = batch_trials or max(1, round(TARGET_BATCH_S / (SECONDS_PER_TEST * cell.n_tests)))
+        if batch_trials is None:  # enough batches to keep every worker busy to the end
+            size = max(1, min(size, math.ceil(total / (4 * workers))))
+        plan = plans[campaign.plan_key(cell)]
+        noise, ft = campaign.scan_noise(cell), campaign.ft_noise_std(cell)
+        for i in range(0, len(missing), size):
+            trials = tuple(missing[i : i + size])
+            seeds = tuple(campaign.trial_seed(cell, t) for t in trials)
+            out.append(Batch(campaign.scenario, plan, cell, noise, ft, trials, seeds))
+    out.sort(key=lambda b: (campaign.plan_key(b.cell), b.cell.key, b.trials[0]))
+    return out
+
+
+# ---------------------------------------------------------------------- executors
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the pool
+
+
+def _run_inline(batches):
+    for b in batches:
+        yield b, run_batch(b)
+
+
+def _run_processes(batches, workers: int):
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        futures = {pool.submit(run_batch, b): b for b in batches}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+    except BaseException:  # Ctrl-C, GeneratorExit, a failed batch: stop now
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            proc.terminate()  # a batch in flight is lost; finished ones are on disk
+        raise
+    pool.shutdown(wait=True)
+
+
+def _dask_client(scheduler):
+    from distributed import Client
+
+    if isinstance(scheduler, Client):
+        return scheduler
+    try:
+        return Client(scheduler, timeout=30)
+    except OSError as exc:
+        raise SweepError(f"--scheduler {scheduler!r}: cannot reach the Dask scheduler ({exc})") from None
+
+
+def _run_dask(batches, client, owned: bool):
+    from distributed import as_completed as dask_completed
+
+    futures = {}
+    try:
+        for b in batches:
+            futures[client.submit(run_batch, b, pure=False)] = b
+        for fut, result in dask_completed(list(futures), with_results=True):
+            yield futures[fut], result
+    finally:
+        client.cancel(list(futures))
+        if owned:
+            client.close()
+
+
+# ---------------------------------------------------------------------- the call
+def sweep(
+    campaign: Campaign | str | Path,
+    out: str | Path,
+    workers: int = 1,
+    scheduler=None,
+    progress: bool = True,
+    batch_trials: int | None = None,
+    stats: SweepStats | None = None,
+    allow_code_change: bool = False,
+) -> pd.DataFrame:
+    """Run (or complete) a campaign into ``out``; returns its trials as a DataFrame.
+
+    Parameters
+    ----------
+    campaign : Campaign or path of a scenario TOML file with a ``[campaign]`` table
+    out : results folder (``campaign.json``, ``trials/part-*.parquet``)
+    workers : local processes (1: in this process); ignored with ``scheduler``
+    scheduler : Dask scheduler address (``"tcp://host:8786"``) or a ``distributed.Client``
+    progress : show a progress bar (stderr)
+    batch_trials : trials per task (default: about 2 s of work, at least 4 tasks per worker)
+    stats : filled with timings (:class:`SweepStats`)
+    allow_code_change : complete a folder started by other vtestbed source code (mixes results)
+
+    Returns
+    -------
+    pandas.DataFrame, one row per trial of this campaign, sorted by the axes and the trial.
+    Columns: ``trial_key``, ``cell_key``, the axes, ``trial``, ``seed``, ``status``, ``error``,
+    per joint ``k_<j>``, ``k_std_<j>``, ``k_true_<j>`` [N*m/rad] and ``err_<j>`` (k/k_true - 1),
+    ``res_std_<x..rz>`` [m | rad], ``condition_number``, ``chi2_reduced``, ``n_warnings``.
+    """
+    t_start = time.perf_counter()
+    stats = stats if stats is not None else SweepStats()
+    campaign = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise SweepError(f"workers = {workers!r} must be an integer >= 1")
+    out = Path(out)
+    manifest = _open_manifest(out, campaign, allow_code_change)
+    log = _logger(progress)
+    t0 = time.perf_counter()
+    plans = _plans(out, campaign, manifest, log)
+    stats.generate_s += time.perf_counter() - t0
+    (out / TRIALS_DIR).mkdir(parents=True, exist_ok=True)
+    for stale in (out / TRIALS_DIR).glob(".part-*.tmp-*"):
+        stale.unlink(missing_ok=True)  # a write cut short by a killed run
+    done = set(read_results(out)["trial_key"])
+    client = None if scheduler is None else _dask_client(scheduler)
+    n_workers = workers if client is None else max(1, sum(client.nthreads().values()))
+    batches = _batches(campaign, plans, done, n_workers, batch_trials)
+    if client is not None:
+        runner = _run_dask(batches, client, owned=client is not scheduler)
+    elif workers == 1:
+        runner = _run_inline(batches)
+    else:
+        runner = _run_processes(batches, workers)
+    from tqdm import tqdm
+
+    todo = sum(len(b.trials) for b in batches)
+    bar = tqdm(total=campaign.n_trials, initial=campaign.n_trials - todo, desc=campaign.scenario.name,
+               unit="trial", disable=not progress, dynamic_ncols=True)  # fmt: skip
+    try:
+        for batch, result in runner:
+            frame = pd.DataFrame(result.rows)
+            _write_atomic(
+                out / TRIALS_DIR / f"{batch.name}.parquet", lambda p, f=frame: f.to_parquet(p, index=False)
+            )
+            stats.prepare_s += result.prepare_s
+            stats.compute_s += result.compute_s
+            stats.trials_run += len(batch.trials)
+            stats.tests_run += len(batch.trials) * batch.cell.n_tests
+            stats.batches += 1
+            stats.pids.add(result.pid)
+            bar.update(len(batch.trials))
+    finally:
+        runner.close()
+        bar.close()
+    stats.wall_s += time.perf_counter() - t_start
+    return results(out, campaign)
+
+
+def results(out: str | Path, campaign: Campaign | None = None) -> pd.DataFrame:
+    """The trials on disk; with ``campaign``, only that campaign's cells and trials."""
+    df = read_results(out)
+    if campaign is None or df.empty:
+        return df
+    keys = {f"{c.key};trial={t}" for c in campaign.cells() for t in range(campaign.trials)}
+    return df[df["trial_key"].isin(keys)].reset_index(drop=True)
+
+
+def _logger(progress: bool):
+    if not progress:
+        return None
+
+    def log(message: str) -> None:
+        import sys
+
+        print(f"vtestbed sweep: {message}", file=sys.stderr, flush=True)
+
+    return log
