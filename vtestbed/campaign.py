@@ -34,7 +34,6 @@ import dataclasses
 import hashlib
 import itertools
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +41,7 @@ import numpy as np
 
 from .errors import OutOfRangeError, ScenarioError
 from .scanner import ScanNoise
-from .scenario import Scenario, parse_scenario
+from .scenario import Scenario, parse_scenario, read_toml
 
 POSE_SETS = ("scenario", "kappa_regions", "random", "design_optimal")
 POSE_SET_IDS = {name: i for i, name in enumerate(POSE_SETS)}
@@ -348,11 +347,4 @@ def parse_campaign(data: dict, source: Path | str | None = None) -> Campaign:
 
 def load_campaign(path: str | Path) -> Campaign:
     """Read and validate a campaign (a scenario TOML file with a ``[campaign]`` table)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"campaign file {path} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    return parse_campaign(data, path)
+    return parse_campaign(read_toml(path, "campaign"), Path(path))

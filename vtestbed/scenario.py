@@ -266,16 +266,20 @@ def _check_noise_params(params: dict, source) -> None:
         raise _err(source, "scanner.noise_params", str(exc)) from None
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file."""
+def read_toml(path: str | Path, what: str = "scenario") -> dict:
+    """The mapping in a TOML file, or a :class:`ScenarioError` saying what is wrong with it."""
     path = Path(path)
     if not path.is_file():
-        raise ScenarioError(f"scenario file {path} does not exist")
+        raise ScenarioError(f"{what} file {path} does not exist")
     try:
-        data = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    return parse_scenario(data, path)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file."""
+    return parse_scenario(read_toml(path), Path(path))
 
 
 def scenario_summary(s: Scenario) -> dict:
