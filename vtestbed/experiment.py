@@ -14,20 +14,20 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import cloud
+from .analysis import displacement_in_block_frame
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
 from .errors import DatasetError
 from .lab import LabSetup
 from .rig import Rig, RigState
-from .scanner import Scanner, ScanNoise
+from .scanner import ScanGeometry, Scanner, ScanNoise
 from .scenario import Scenario
 from .sensors import ForceTorqueSensor
-from .transforms import rotation_vector
 
 GROUP_KEYS = {"identification": 0, "validation": 1}
 
@@ -42,10 +42,9 @@ class Timings:
     process: float = 0.0
     identify: float = 0.0
     report: float = 0.0
-    extra: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return {k: round(v, 4) for k, v in self.__dict__.items() if k != "extra"} | self.extra
+        return {k: round(v, 4) for k, v in self.__dict__.items()}
 
 
 def test_rng(seed: int, group: str, index: int) -> np.random.Generator:
@@ -65,10 +64,61 @@ def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
     )
 
 
-def _true_block_displacement(s0: RigState, s1: RigState) -> np.ndarray:
-    rot0 = s0.block_pose[:3, :3]
-    trans = rot0.T @ (s1.block_pose[:3, 3] - s0.block_pose[:3, 3])
-    return np.concatenate([trans, rotation_vector(rot0.T @ s1.block_pose[:3, :3])])
+def scanner_placement(scenario: Scenario) -> dict:
+    """Keyword arguments of :meth:`Scanner.place` that the scenario sets."""
+    return {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
+
+
+@dataclass(frozen=True)
+class TestPhysics:
+    """One test in the truth world, before any noise: both equilibria and both ray casts."""
+
+    unloaded: RigState
+    loaded: RigState
+    scanner: Scanner
+    hits_unloaded: ScanGeometry
+    hits_loaded: ScanGeometry
+
+    @property
+    def displacement_true(self) -> np.ndarray:
+        """(6,) true block displacement in the unloaded block frame [m, rad]."""
+        return displacement_in_block_frame(self.unloaded.block_pose, self.loaded.block_pose)
+
+
+def run_test_physics(
+    rig: Rig, q, hook: str, anchor: str, tension: float, distance: float, placement: dict, timings=None
+) -> TestPhysics:
+    """Command, hook, solve, place the scanner and cast; tighten and cast again (deterministic).
+
+    Raises the world's VtestbedError when the test cannot be run (scanner view, sensor range).
+    """
+    t0 = time.perf_counter()
+    rig.command(q)
+    rig.hook(hook, anchor)
+    s0 = rig.solve()
+    t1 = time.perf_counter()
+    scanner = Scanner.place(rig.lab, s0.block_pose, distance_m=distance, **placement)
+    hits0 = scanner.cast(rig.model, rig.data)
+    t2 = time.perf_counter()
+    s1 = rig.tighten(tension)
+    t3 = time.perf_counter()
+    hits1 = scanner.cast(rig.model, rig.data)
+    if timings is not None:
+        timings.physics += (t1 - t0) + (t3 - t2)
+        timings.scan += (t2 - t1) + (time.perf_counter() - t3)
+    return TestPhysics(s0, s1, scanner, hits0, hits1)
+
+
+def draw_readings(hits_unloaded, hits_loaded, wrench_unloaded, wrench_loaded, noise, sensor, rng):
+    """One test's noisy measurements, drawn in a fixed order: scan, F/T, scan, F/T.
+
+    ``noise=None`` is a perfect scanner (it draws nothing). Returns (cloud0, w0, cloud1, w1).
+    """
+    cloud0 = noise.apply(hits_unloaded, rng) if noise is not None else hits_unloaded.points_m.copy()
+    w0 = sensor.read(wrench_unloaded, rng)
+    cloud1 = noise.apply(hits_loaded, rng) if noise is not None else hits_loaded.points_m.copy()
+    w1 = sensor.read(wrench_loaded, rng)
+    return cloud0, w0, cloud1, w1
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
@@ -132,7 +182,7 @@ def simulate(
     write_setup(out, dataset_setup(scenario, lab))
     noise = ScanNoise(**scenario.scanner.noise_params) if scenario.scanner.noise else None
     sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
-    placement = {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
+    placement = scanner_placement(scenario)
     jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
     jobs += [("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)]
     bar = None
@@ -145,20 +195,23 @@ def simulate(
             test_id = f"{'T' if group == 'identification' else 'V'}{i + 1:03d}"
             if test_id not in writer.done:
                 rng = test_rng(scenario.seed, group, i)
-                t0 = time.perf_counter()
-                rig.command(q)
-                rig.hook(load.hooks[i], load.anchors[i])
-                s0 = rig.solve()
-                t1 = time.perf_counter()
-                scanner = Scanner.place(lab, s0.block_pose, distance_m=scenario.scanner.distance, **placement)
-                cloud0 = scanner.scan(rig.model, rig.data, rng, noise)
-                w0 = sensor.read(s0.sensor_wrench, rng)
-                t2 = time.perf_counter()
-                s1 = rig.tighten(load.tensions[i])
+                phys = run_test_physics(
+                    rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
+                    placement, timings,
+                )  # fmt: skip
+                s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
                 t3 = time.perf_counter()
-                cloud1 = scanner.scan(rig.model, rig.data, rng, noise)
-                w1 = sensor.read(s1.sensor_wrench, rng)
+                cloud0, w0, cloud1, w1 = draw_readings(
+                    phys.hits_unloaded,
+                    phys.hits_loaded,
+                    s0.sensor_wrench,
+                    s1.sensor_wrench,
+                    noise,
+                    sensor,
+                    rng,
+                )
                 t4 = time.perf_counter()
+                timings.scan += t4 - t3
                 paths = (
                     out / CLOUD_DIR / f"{test_id}_unloaded.ply",
                     out / CLOUD_DIR / f"{test_id}_loaded.ply",
@@ -175,7 +228,7 @@ def simulate(
                     "q_loaded_rad": s1.q.tolist(),
                     "block_pose_unloaded": s0.block_pose.tolist(),
                     "block_pose_loaded": s1.block_pose.tolist(),
-                    "displacement_true_block_frame": _true_block_displacement(s0, s1).tolist(),
+                    "displacement_true_block_frame": phys.displacement_true.tolist(),
                     "sensor_wrench_true_unloaded": s0.sensor_wrench.tolist(),
                     "sensor_wrench_true_loaded": s1.sensor_wrench.tolist(),
                     "scanner_pose_world": scanner.pose_world.tolist(),
@@ -185,8 +238,6 @@ def simulate(
                 # the row is written last: it marks the test as finished
                 writer.append(TestRecord(test_id, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
                 t5 = time.perf_counter()
-                timings.physics += (t1 - t0) + (t3 - t2)
-                timings.scan += (t2 - t1) + (t4 - t3)
                 timings.write += t5 - t4
             if bar:
                 bar.update()

@@ -19,12 +19,12 @@ import numpy as np
 
 from .analysis import TestMeasurement, identify_measurements, measure_arrays
 from .dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
-from .experiment import dataset_setup, test_rng
+from .experiment import dataset_setup, draw_readings, run_test_physics, scanner_placement, test_rng
 from .identify import IdentificationResult
 from .kinematics import ArmKinematics
 from .lab import LabSetup
 from .rig import Rig
-from .scanner import ScanGeometry, Scanner, ScanNoise
+from .scanner import ScanGeometry, ScanNoise
 from .scenario import Scenario
 from .sensors import ForceTorqueSensor
 
@@ -58,11 +58,9 @@ class PreparedScenario:
 
 def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedScenario:
     """Solve every test's equilibrium and ray-cast both scans once (deterministic)."""
-    from .experiment import _true_block_displacement
-
     lab = LabSetup()
     rig = Rig(scenario.robot(), lab)
-    placement = {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
+    placement = scanner_placement(scenario)
     jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
     if include_validation:
         jobs += [
@@ -70,25 +68,21 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
         ]
     tests = []
     for group, i, q, load in jobs:
-        rig.command(q)
-        rig.hook(load.hooks[i], load.anchors[i])
-        s0 = rig.solve()
-        scanner = Scanner.place(lab, s0.block_pose, distance_m=scenario.scanner.distance, **placement)
-        hits0 = scanner.cast(rig.model, rig.data)
-        s1 = rig.tighten(load.tensions[i])
-        hits1 = scanner.cast(rig.model, rig.data)
+        phys = run_test_physics(
+            rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance, placement
+        )
         tests.append(
             PreparedTest(
                 test_id=f"{'T' if group == 'identification' else 'V'}{i + 1:03d}",
                 group=group,
                 index=i,
                 q=np.asarray(q),
-                scanner_pose=scanner_pose_as_recorded(scanner.pose_world),
-                hits_unloaded=hits0,
-                hits_loaded=hits1,
-                wrench_unloaded=s0.sensor_wrench,
-                wrench_loaded=s1.sensor_wrench,
-                displacement_true=_true_block_displacement(s0, s1),
+                scanner_pose=scanner_pose_as_recorded(phys.scanner.pose_world),
+                hits_unloaded=phys.hits_unloaded,
+                hits_loaded=phys.hits_loaded,
+                wrench_unloaded=phys.unloaded.sensor_wrench,
+                wrench_loaded=phys.loaded.sensor_wrench,
+                displacement_true=phys.displacement_true,
             )
         )
     return PreparedScenario(scenario, dataset_setup(scenario, lab), tuple(tests), rig.robot.stiffness_true)
@@ -114,10 +108,9 @@ def measure_trial(
     out = []
     for t in tests if tests is not None else prepared.identification_tests():
         rng = test_rng(seed, t.group, t.index)
-        cloud0 = noise.apply(t.hits_unloaded, rng) if noise is not None else t.hits_unloaded.points_m.copy()
-        w0 = sensor.read(t.wrench_unloaded, rng)
-        cloud1 = noise.apply(t.hits_loaded, rng) if noise is not None else t.hits_loaded.points_m.copy()
-        w1 = sensor.read(t.wrench_loaded, rng)
+        cloud0, w0, cloud1, w1 = draw_readings(
+            t.hits_unloaded, t.hits_loaded, t.wrench_unloaded, t.wrench_loaded, noise, sensor, rng
+        )
         record = TestRecord(t.test_id, t.group, np.degrees(t.q), w0, w1, t.scanner_pose, Path(), Path())
         out.append(measure_arrays(record, cloud0, cloud1, prepared.setup, kin))
     return out

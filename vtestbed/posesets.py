@@ -40,10 +40,10 @@ import numpy as np
 
 from . import design, poses, regions
 from .errors import VtestbedError
+from .experiment import run_test_physics, scanner_placement
 from .kinematics import ArmKinematics
 from .lab import LabSetup
 from .rig import Rig
-from .scanner import Scanner
 from .scenario import LoadPlan, Scenario
 
 
@@ -100,9 +100,7 @@ class FeasibilityChecker:
         self.lab = lab or LabSetup()
         self.rig = Rig(scenario.robot(), self.lab)
         self.distance = scenario.scanner.distance
-        self.placement = (
-            {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
-        )
+        self.placement = scanner_placement(scenario)
         self.cache: dict = {}
         self.tried = 0
 
@@ -112,14 +110,7 @@ class FeasibilityChecker:
         if key not in self.cache:
             self.tried += 1
             try:
-                rig = self.rig
-                rig.command(q)
-                rig.hook(hook, anchor)
-                s0 = rig.solve()
-                scanner = Scanner.place(self.lab, s0.block_pose, distance_m=self.distance, **self.placement)
-                scanner.cast(rig.model, rig.data)
-                rig.tighten(tension)
-                scanner.cast(rig.model, rig.data)
+                run_test_physics(self.rig, q, hook, anchor, tension, self.distance, self.placement)
                 self.cache[key] = None
             except VtestbedError as exc:
                 self.cache[key] = f"{type(exc).__name__}: {exc}"
