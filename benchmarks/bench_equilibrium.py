@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from _timing import median_time  # benchmarks/ is on sys.path when run as a script
 
-from vtestbed.rig import Rig
+from vtestbed.world.rig import Rig
 
 
 def main() -> None:

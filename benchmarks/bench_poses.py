@@ -10,8 +10,10 @@ import time
 
 import numpy as np
 
-from vtestbed import design, influence, poses, regions
-from vtestbed.kinematics import ArmKinematics
+from vtestbed.design import criterion as poses
+from vtestbed.design import influence, regions
+from vtestbed.design import optimal as design
+from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import load_robot
 
 

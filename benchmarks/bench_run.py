@@ -22,7 +22,7 @@ def main() -> None:
             [
                 sys.executable,
                 "-m",
-                "vtestbed.cli",
+                "vtestbed.cli.main",
                 "run",
                 str(ROOT / "scenarios" / "kr60_paper.toml"),
                 "--out",

@@ -32,15 +32,16 @@ import tomllib  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from vtestbed import cloud, montecarlo  # noqa: E402
-from vtestbed import sweep as sweep_module  # noqa: E402
-from vtestbed.analysis import identify_measurements, wrench_at_block  # noqa: E402
-from vtestbed.campaign import parse_campaign  # noqa: E402
+from vtestbed import montecarlo  # noqa: E402
+from vtestbed.campaigns import runner as sweep_module  # noqa: E402
+from vtestbed.campaigns.runner import SweepStats, sweep  # noqa: E402
+from vtestbed.campaigns.spec import parse_campaign  # noqa: E402
 from vtestbed.experiment import test_rng  # noqa: E402
-from vtestbed.kinematics import ArmKinematics  # noqa: E402
-from vtestbed.scanner import ScanNoise  # noqa: E402
-from vtestbed.sweep import SweepStats, sweep  # noqa: E402
+from vtestbed.researcher import cloud  # noqa: E402
+from vtestbed.researcher.kinematics import ArmKinematics  # noqa: E402
+from vtestbed.researcher.measure import identify_measurements, wrench_at_block  # noqa: E402
 from vtestbed.transforms import invert  # noqa: E402
+from vtestbed.world.scanner import ScanNoise  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,7 +105,7 @@ def trial_split(prepared, n_tests: int, repeats: int = 3) -> dict:
 
 
 def import_time() -> float:
-    code = "import vtestbed.sweep, vtestbed.montecarlo, vtestbed.analysis"
+    code = "import vtestbed.campaigns.runner, vtestbed.campaigns.montecarlo, vtestbed.researcher.measure"
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], check=True)
     return time.perf_counter() - t0

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtestbed.analysis import identify_measurements
-from vtestbed.identify import stack
-from vtestbed.montecarlo import measure_trial, prepare
+from vtestbed.campaigns.montecarlo import measure_trial, prepare
+from vtestbed.researcher.identify import stack
+from vtestbed.researcher.measure import identify_measurements
 from vtestbed.scenario import load_scenario
 
 SEEDS = 50  # >= 30; the std of a z-score std over N seeds is about 1/sqrt(2N) = 10 %

@@ -7,10 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtestbed import design, montecarlo, poses, posesets
-from vtestbed.campaign import AXES, POSE_SETS, load_campaign, parse_campaign, scaled_noise
+from vtestbed.campaigns import montecarlo, posesets
+from vtestbed.campaigns.spec import AXES, POSE_SETS, load_campaign, parse_campaign, scaled_noise
+from vtestbed.design import criterion as poses
+from vtestbed.design import optimal as design
 from vtestbed.errors import ScenarioError
-from vtestbed.scanner import ScanNoise
+from vtestbed.world.scanner import ScanNoise
 
 ROOT = Path(__file__).resolve().parents[1]
 # the base scenario of the quick campaign (its own copy of 20 tests, stable under others' edits)

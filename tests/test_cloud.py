@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vtestbed.cloud import (
+from vtestbed.errors import OutOfRangeError, ScanError
+from vtestbed.researcher.cloud import (
     FitParams,
     block_displacement,
     displacement_in_scanner,
@@ -15,9 +16,6 @@ from vtestbed.cloud import (
     read_ply,
     write_ply,
 )
-from vtestbed.errors import OutOfRangeError, ScanError
-from vtestbed.rig import Rig
-from vtestbed.scanner import BLOCK_GEOM, Scanner, ScanNoise
 from vtestbed.transforms import (
     displacement,
     homogeneous,
@@ -25,6 +23,8 @@ from vtestbed.transforms import (
     matrix_from_rotation_vector,
     rotation_vector,
 )
+from vtestbed.world.rig import Rig
+from vtestbed.world.scanner import BLOCK_GEOM, Scanner, ScanNoise
 
 POSE_DEG = (0.0, -60.0, -20.0, 30.0, 50.0, 45.0)
 SIGMA0, GRAZING = 0.010e-3, 1.5

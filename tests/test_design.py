@@ -6,11 +6,11 @@ import itertools
 import numpy as np
 import pytest
 
-from vtestbed import design
+from vtestbed.design import optimal as design
 from vtestbed.errors import OutOfRangeError, UnknownNameError
-from vtestbed.identify import identify
-from vtestbed.kinematics import ArmKinematics
-from vtestbed.rig import Rig
+from vtestbed.researcher.identify import identify
+from vtestbed.researcher.kinematics import ArmKinematics
+from vtestbed.world.rig import Rig
 
 # Poses from the usable regions Z1 and Z4 (DH, deg), as `vtestbed poses regions` draws them.
 POSES_DEG = [
@@ -135,7 +135,7 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
     import tomllib
     from pathlib import Path
 
-    from vtestbed.montecarlo import measure_trial, prepare
+    from vtestbed.campaigns.montecarlo import measure_trial, prepare
     from vtestbed.scenario import parse_scenario
 
     paper = tomllib.loads((Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml").read_text())

@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtestbed import cli, cloud
+from vtestbed.campaigns.montecarlo import prepare, trial
+from vtestbed import cli
 from vtestbed.dataset import read_tests
 from vtestbed.errors import DatasetError, ScanError
 from vtestbed.experiment import identify_dataset, run, simulate
-from vtestbed.montecarlo import prepare, trial
+from vtestbed.researcher import cloud
 from vtestbed.scenario import load_scenario, parse_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"

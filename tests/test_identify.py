@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vtestbed.errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
-from vtestbed.identify import a_matrix, identify, stack
-from vtestbed.kinematics import ArmKinematics
+from vtestbed.researcher.identify import a_matrix, identify, stack
+from vtestbed.researcher.kinematics import ArmKinematics
 
 SIGMA = np.array([2e-6, 2e-6, 2e-6, 2e-5, 2e-5, 2e-5])  # m, rad
 

@@ -4,8 +4,8 @@ import pytest
 from dh_reference import flange_pose as dh_flange_pose
 from scipy.spatial.transform import Rotation
 
-from vtestbed import mjcf
-from vtestbed.kinematics import ArmKinematics
+from vtestbed.researcher.kinematics import ArmKinematics
+from vtestbed.world import mjcf
 
 
 @pytest.fixture(scope="module")

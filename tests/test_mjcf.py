@@ -1,8 +1,8 @@
 import mujoco
 import numpy as np
 
-from vtestbed import mjcf
 from vtestbed.robots import robot_dir
+from vtestbed.world import mjcf
 
 
 def test_committed_xml_is_what_the_generator_produces(robot):

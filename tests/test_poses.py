@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from vtestbed import influence, poses, regions
-from vtestbed.cli import main
+from vtestbed.cli.main import main
+from vtestbed.design import criterion as poses
+from vtestbed.design import influence, regions
 from vtestbed.errors import JointLimitError, UnknownNameError
-from vtestbed.kinematics import ArmKinematics
+from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import RobotDescription
 
 

@@ -8,10 +8,10 @@ from vtestbed.errors import (
     SensorOverloadError,
     UnknownNameError,
 )
-from vtestbed.kinematics import ArmKinematics
-from vtestbed.rig import Rig
+from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import load_robot
 from vtestbed.transforms import displacement
+from vtestbed.world.rig import Rig
 
 POSE = np.radians([5, -60, -20, 30, 50, 45])
 

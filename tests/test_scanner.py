@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vtestbed.cloud import read_ply, write_ply
 from vtestbed.errors import DatasetError, OutOfRangeError, ScanError
-from vtestbed.rig import Rig
-from vtestbed.scanner import BLOCK_GEOM, Scanner, ScanNoise
+from vtestbed.researcher.cloud import read_ply, write_ply
 from vtestbed.transforms import homogeneous, invert, rotation_vector
+from vtestbed.world.rig import Rig
+from vtestbed.world.scanner import BLOCK_GEOM, Scanner, ScanNoise
 
 POSE_DEG = (0.0, -60.0, -20.0, 30.0, 50.0, 45.0)
 
@@ -217,7 +217,7 @@ def test_ply_round_trip(scene, tmp_path):
 
 
 def test_scan_command_writes_clouds_and_matching_displacements(tmp_path, capsys):
-    from vtestbed.cli import main
+    from vtestbed.cli.main import main
     from vtestbed.transforms import displacement
 
     assert main(["scan", "--out", str(tmp_path), "--noise-free"]) == 0

@@ -23,8 +23,8 @@ import numpy as np
 
 from .errors import DatasetError, SensorOverloadError
 from .lab import ForceSensorSpec
-from .sensors import AXES, check_wrench_range
 from .transforms import homogeneous, matrix_from_rotation_vector, rotation_vector
+from .world.sensors import AXES, check_wrench_range
 
 FORMAT = "vtestbed-dataset/1"
 SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"

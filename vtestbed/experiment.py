@@ -19,15 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import cloud
-from .analysis import displacement_in_block_frame
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
 from .errors import DatasetError
 from .lab import LabSetup
-from .rig import Rig, RigState
-from .scanner import ScanGeometry, Scanner, ScanNoise
+from .researcher import cloud
+from .researcher.measure import displacement_in_block_frame
 from .scenario import Scenario
-from .sensors import ForceTorqueSensor
+from .world.rig import Rig, RigState
+from .world.scanner import ScanGeometry, Scanner, ScanNoise
+from .world.sensors import ForceTorqueSensor
 
 GROUP_KEYS = {"identification": 0, "validation": 1}
 
@@ -250,7 +250,7 @@ def identify_dataset(
     root: str | Path, method: str = "fgls", progress: bool = False, timings: Timings | None = None
 ):
     """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult)."""
-    from .analysis import identify_measurements, load_measurements
+    from .researcher.measure import identify_measurements, load_measurements
     from .robots import load_robot
 
     timings = timings or Timings()
@@ -286,8 +286,8 @@ def run(
     replace_stale: bool = False,
 ) -> dict:
     """simulate + identify + compare; writes ``out/result.json`` and figures; returns the result."""
-    from . import report
     from .dataset import read_truth
+    from .researcher import report
 
     out = Path(out)
     timings = Timings()

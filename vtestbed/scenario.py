@@ -254,7 +254,7 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
 
 
 def _check_noise_params(params: dict, source) -> None:
-    from .scanner import ScanNoise
+    from .world.scanner import ScanNoise
 
     valid = tuple(ScanNoise.__dataclass_fields__)
     _check_keys(params, valid, source, "scanner.noise_params.")

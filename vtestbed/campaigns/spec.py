@@ -39,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import OutOfRangeError, ScenarioError
-from .scanner import ScanNoise
-from .scenario import Scenario, parse_scenario, read_toml
+from ..errors import OutOfRangeError, ScenarioError
+from ..scenario import Scenario, parse_scenario, read_toml
+from ..world.scanner import ScanNoise
 
 POSE_SETS = ("scenario", "kappa_regions", "random", "design_optimal")
 POSE_SET_IDS = {name: i for i, name in enumerate(POSE_SETS)}

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._open3d import o3d
-from .errors import DatasetError, OutOfRangeError, ScanError, check_range
-from .transforms import displacement, invert
+from .._open3d import o3d
+from ..errors import DatasetError, OutOfRangeError, ScanError, check_range
+from ..transforms import displacement, invert
 
 FACES = ("+x", "+y", "+z")
 _UNITS = {"m": 1.0, "mm": 1e-3}

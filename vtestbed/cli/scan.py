@@ -8,18 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_robot import add_pose_arguments, parse_numbers, pose_from_args
+from .robot import add_pose_arguments, parse_numbers, pose_from_args
 
 DEFAULT_VIEW = "1,1,1"
 
 
 def _cmd_scan(args) -> int:
-    from . import cloud
-    from .kinematics import ArmKinematics
-    from .rig import Rig
-    from .robots import load_robot
-    from .scanner import Scanner, ScanNoise
-    from .transforms import displacement, invert
+    from ..researcher import cloud
+    from ..researcher.kinematics import ArmKinematics
+    from ..robots import load_robot
+    from ..transforms import displacement, invert
+    from ..world.rig import Rig
+    from ..world.scanner import Scanner, ScanNoise
 
     robot = load_robot(args.robot)
     rig = Rig(robot)

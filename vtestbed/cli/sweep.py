@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .campaign import load_campaign
+from ..campaigns.spec import load_campaign
 
 
 def _text_report(report: dict) -> str:
@@ -37,8 +37,8 @@ def _text_report(report: dict) -> str:
 
 
 def _cmd_sweep(args) -> int:
-    from .sweep import MANIFEST, sweep
-    from .sweep_report import write_report
+    from ..campaigns.report import write_report
+    from ..campaigns.runner import MANIFEST, sweep
 
     campaign = load_campaign(args.scenario)  # every error is raised here, before any work
     if args.dry_run:

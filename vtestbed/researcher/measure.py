@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
+from ..errors import DatasetError, ScanError, VtestbedError
+from ..robots import load_robot
+from ..transforms import invert, rotation_vector
 from . import cloud
-from .dataset import DatasetSetup, TestRecord, read_setup, read_tests
-from .errors import DatasetError, ScanError, VtestbedError
 from .identify import IdentificationResult, identify
 from .kinematics import ArmKinematics
-from .robots import load_robot
-from .transforms import invert, rotation_vector
 
 
 @dataclass(frozen=True)

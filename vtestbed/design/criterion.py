@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from .errors import OutOfRangeError, UnknownNameError, VtestbedError
-from .robots import RobotDescription
+from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
+from ..robots import RobotDescription
 
 POINTS = ("wrist", "flange", "block")
 # The paper's reported optimum (Sec. 3.1), as printed [deg]; read as KUKA controller angles
@@ -95,7 +95,7 @@ def reference_offset(point="wrist", block_in_flange: np.ndarray | None = None) -
             return np.zeros(3)
         if point == "block":
             if block_in_flange is None:
-                from .lab import LabSetup
+                from ..lab import LabSetup
 
                 block_in_flange = LabSetup().block_in_flange
             return np.asarray(block_in_flange, dtype=float)[:3, 3].copy()

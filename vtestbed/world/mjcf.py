@@ -21,9 +21,9 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from .lab import LabSetup
-from .robots import RobotDescription, robot_dir
-from .transforms import quat_wxyz, rot_x
+from ..lab import LabSetup
+from ..robots import RobotDescription, robot_dir
+from ..transforms import quat_wxyz, rot_x
 
 # Names the rest of vtestbed relies on.
 FLANGE_SITE = "flange"

@@ -6,15 +6,15 @@ import argparse
 import importlib
 import sys
 
-from .errors import VtestbedError
+from ..errors import VtestbedError
 
 # Modules with a ``register(subparsers)`` function; each adds its own subcommands.
 COMMAND_MODULES = [
-    "vtestbed.cli_robot",
-    "vtestbed.cli_experiment",
-    "vtestbed.cli_scan",
-    "vtestbed.cli_poses",
-    "vtestbed.cli_sweep",
+    "vtestbed.cli.robot",
+    "vtestbed.cli.experiment",
+    "vtestbed.cli.scan",
+    "vtestbed.cli.poses",
+    "vtestbed.cli.sweep",
 ]
 
 

@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import kendalltau
 
-from .errors import OutOfRangeError, UnknownNameError
-from .poses import (
+from ..errors import OutOfRangeError, UnknownNameError
+from ..robots import RobotDescription
+from .criterion import (
     PAPER_RANKING,
     PAPER_TABLE2_PER_DEG2,
     _point_name,
@@ -28,7 +29,6 @@ from .poses import (
     optimize,
     paper_optimum,
 )
-from .robots import RobotDescription
 
 DEG2 = np.radians(1.0) ** 2  # rad^2 per deg^2
 METHODS = ("fd", "fourier")

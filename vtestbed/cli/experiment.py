@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"
+SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
 
 def _print_run(summary: dict, out: Path) -> None:
@@ -24,8 +24,8 @@ def _print_run(summary: dict, out: Path) -> None:
 
 
 def _cmd_simulate(args) -> int:
-    from .experiment import simulate
-    from .scenario import load_scenario
+    from ..experiment import simulate
+    from ..scenario import load_scenario
 
     out = simulate(load_scenario(args.scenario), args.out, progress=not args.quiet)
     print(f"dataset written to {out}")
@@ -33,9 +33,9 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_identify(args) -> int:
-    from . import report
-    from .dataset import read_truth
-    from .experiment import identify_dataset
+    from ..dataset import read_truth
+    from ..experiment import identify_dataset
+    from ..researcher import report
 
     setup, measurements, result = identify_dataset(args.dataset, args.method, progress=not args.quiet)
     out = {"dataset": str(args.dataset), **result.as_dict()}
@@ -64,8 +64,8 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from .experiment import run
-    from .scenario import load_scenario
+    from ..experiment import run
+    from ..scenario import load_scenario
 
     out = Path(args.out)
     summary = run(

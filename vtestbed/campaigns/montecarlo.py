@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .analysis import TestMeasurement, identify_measurements, measure_arrays
-from .dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
-from .experiment import dataset_setup, draw_readings, run_test_physics, scanner_placement, test_rng
-from .identify import IdentificationResult
-from .kinematics import ArmKinematics
-from .lab import LabSetup
-from .rig import Rig
-from .scanner import ScanGeometry, ScanNoise
-from .scenario import Scenario
-from .sensors import ForceTorqueSensor
+from ..dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
+from ..experiment import dataset_setup, draw_readings, run_test_physics, scanner_placement, test_rng
+from ..lab import LabSetup
+from ..researcher.identify import IdentificationResult
+from ..researcher.kinematics import ArmKinematics
+from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
+from ..scenario import Scenario
+from ..world.rig import Rig
+from ..world.scanner import ScanGeometry, ScanNoise
+from ..world.sensors import ForceTorqueSensor
 
 
 @dataclass(frozen=True)

@@ -18,12 +18,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from ..errors import ConvergenceError, OutOfRangeError
+from ..lab import LabSetup
+from ..robots import RobotDescription, load_robot
+from ..transforms import homogeneous, quat_wxyz
 from . import mjcf
-from .errors import ConvergenceError, OutOfRangeError
-from .lab import LabSetup
-from .robots import RobotDescription, load_robot
 from .sensors import check_wrench_range
-from .transforms import homogeneous, quat_wxyz
 
 RESIDUAL_TOL = 1e-9  # N*m; the floor is about ulp(q) * k = 4e-11 N*m
 TENSION_TOL = 1e-6  # N

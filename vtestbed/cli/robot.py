@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 
-from .errors import OutOfRangeError
-from .robots import available_robots, load_robot
-from .transforms import displacement
+from ..errors import OutOfRangeError
+from ..robots import available_robots, load_robot
+from ..transforms import displacement
 
 DEFAULT_POSE_DEG = "0,-60,-20,30,50,45"
 
@@ -65,7 +65,7 @@ def _cmd_robot(args) -> int:
 
 
 def _cmd_load(args) -> int:
-    from .rig import Rig
+    from ..world.rig import Rig
 
     robot = load_robot(args.robot)
     rig = Rig(robot)
@@ -104,7 +104,7 @@ def _cmd_load(args) -> int:
 
 
 def _cmd_models(args) -> int:
-    from .mjcf import write_model_files
+    from ..world.mjcf import write_model_files
 
     for path in write_model_files(load_robot(args.robot)):
         print(f"wrote {path}")

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import OutOfRangeError, UnknownNameError
-from .identify import a_matrix
-from .kinematics import ArmKinematics
-from .lab import LabSetup
-from .robots import RobotDescription
+from ..errors import OutOfRangeError, UnknownNameError
+from ..lab import LabSetup
+from ..researcher.identify import a_matrix
+from ..researcher.kinematics import ArmKinematics
+from ..robots import RobotDescription
 
 # Block-displacement noise of the default scan pipeline (VTOP 200B noise model, 0.6 m, open3d fit),
 # measured against the truth over 30 seeds x 8 tests (tests/test_design.py): 5.3 um, 8.5 urad.

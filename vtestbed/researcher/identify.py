@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
+from ..errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
 
 METHODS = ("ols", "wls", "fgls")
 ILL_CONDITIONED = 1e3  # condition number of the joints' weighted displacement contributions

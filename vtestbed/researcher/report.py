@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .analysis import TestMeasurement, identify_measurements, predict_displacement
 from .identify import IdentificationResult
+from .measure import TestMeasurement, identify_measurements, predict_displacement
 
 PAPER_FIRST_N = 6  # the paper's Table 5 uses the estimates from 6 to 20 tests
 

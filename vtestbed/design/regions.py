@@ -18,9 +18,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import OutOfRangeError, UnknownNameError, VtestbedError
-from .poses import _point_name, arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, reference_offset
-from .robots import RobotDescription
+from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
+from ..robots import RobotDescription
+from .criterion import _point_name, arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, reference_offset
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import SensorOverloadError
-from .lab import ForceSensorSpec
+from ..errors import SensorOverloadError
+from ..lab import ForceSensorSpec
 
 AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .campaign import AXES
+from .spec import AXES
 
 BOOTSTRAP = 2000
 PARAMS = list(AXES)

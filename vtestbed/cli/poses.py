@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import design, influence, poses, regions
-from .cli_robot import parse_angles_deg, parse_numbers
-from .errors import OutOfRangeError
-from .robots import load_robot
+from ..design import criterion as poses
+from ..design import influence, regions
+from ..design import optimal as design
+from ..errors import OutOfRangeError
+from ..robots import load_robot
+from .robot import parse_angles_deg, parse_numbers
 
 DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in front of the robot
 
@@ -101,7 +103,7 @@ def plot_joint_plane(pmap, found, path, marks=()) -> None:
 
 def plot_cartesian(cmap, path, lab=None) -> None:
     """Best criterion per (x, z) bin of the reference point, with floor and table."""
-    from .lab import LabSetup
+    from ..lab import LabSetup
 
     plt = _pyplot()
     lab = lab or LabSetup()

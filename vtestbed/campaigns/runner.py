@@ -35,14 +35,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..errors import VtestbedError
+from ..lab import LabSetup
+from ..scenario import Scenario
+from ..world.scanner import ScanNoise
+from ..world.sensors import ForceTorqueSensor
 from . import montecarlo
-from .campaign import AXES, Campaign, Cell, load_campaign
-from .errors import VtestbedError
-from .lab import LabSetup
 from .posesets import TestPlan, build_plans, plan_quality
-from .scanner import ScanNoise
-from .scenario import Scenario
-from .sensors import ForceTorqueSensor
+from .spec import AXES, Campaign, Cell, load_campaign
 
 MANIFEST = "campaign.json"
 TRIALS_DIR = "trials"
@@ -220,7 +220,7 @@ def read_results(out: str | Path) -> pd.DataFrame:
 def code_fingerprint() -> str:
     """Hash of the source that shapes a trial's numbers (package modules but the CLI and reports,
     and the robot model files): results of different code are not mixed in one folder."""
-    from .robots import MODELS_DIR
+    from ..robots import MODELS_DIR
 
     package = Path(__file__).resolve().parent
     skip = ("cli", "report", "sweep_report")

@@ -24,10 +24,10 @@ from functools import cached_property
 import mujoco
 import numpy as np
 
-from .errors import OutOfRangeError, ScanError, check_range
-from .lab import LabSetup
+from ..errors import OutOfRangeError, ScanError, check_range
+from ..lab import LabSetup
+from ..transforms import homogeneous, matrix_from_rotation_vector
 from .mjcf import SCANNABLE_GROUP
-from .transforms import homogeneous, matrix_from_rotation_vector
 
 BLOCK_GEOM = "target_block"
 FACE_LABELS = ("+x", "-x", "+y", "-y", "+z", "-z")

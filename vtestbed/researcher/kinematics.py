@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from .robots import RobotDescription
-from .transforms import homogeneous, rot_x
+from ..robots import RobotDescription
+from ..transforms import homogeneous, rot_x
 
 
 def build_pinocchio_model(robot: RobotDescription) -> pin.Model:
@@ -97,7 +97,7 @@ class ArmKinematics:
             ``"tool"``: the same vectors in the tool frame's axes.
         """
         if frame not in ("base", "tool"):
-            from .errors import UnknownNameError
+            from ..errors import UnknownNameError
 
             raise UnknownNameError("Jacobian frame", frame, ("base", "tool"))
         offset = self.tool_in_flange if tool_in_flange is None else np.asarray(tool_in_flange)

@@ -38,13 +38,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import design, poses, regions
-from .errors import VtestbedError
-from .experiment import run_test_physics, scanner_placement
-from .kinematics import ArmKinematics
-from .lab import LabSetup
-from .rig import Rig
-from .scenario import LoadPlan, Scenario
+from ..design import criterion as poses
+from ..design import optimal as design
+from ..design import regions
+from ..errors import VtestbedError
+from ..experiment import run_test_physics, scanner_placement
+from ..lab import LabSetup
+from ..researcher.kinematics import ArmKinematics
+from ..scenario import LoadPlan, Scenario
+from ..world.rig import Rig
 
 
 @dataclass(frozen=True, eq=False)
