@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed import cli
+from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed.dataset import read_tests
 from vtestbed.errors import DatasetError, ScanError
 from vtestbed.experiment import identify_dataset, run, simulate
