@@ -13,6 +13,7 @@ import numpy as np
 from vtestbed.design import criterion as poses
 from vtestbed.design import influence, regions
 from vtestbed.design import optimal as design
+from vtestbed.design.priors import PAPER_TABLE5  # noqa: E402
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import load_robot
 
@@ -65,7 +66,7 @@ def main() -> None:
     t0 = time.perf_counter()
     cands = design.candidate_tests(robot, sample.q)
     t_cand = time.perf_counter() - t0
-    k = np.array(design.PAPER_STIFFNESS_NMM) / 1e3
+    k = PAPER_TABLE5.stiffness
     t = best_of(lambda: design.select_tests(cands, 10, k, criterion="D", method="exchange"))
     print(
         f"{len(cands)} candidate tests from 40 poses: {t_cand * 1e3:.0f} ms; D-optimal exchange of 10: {t * 1e3:.1f} ms"

@@ -22,7 +22,7 @@ def main() -> None:
             [
                 sys.executable,
                 "-m",
-                "vtestbed.cli.main",
+                "vtestbed",
                 "run",
                 str(ROOT / "scenarios" / "kr60_paper.toml"),
                 "--out",

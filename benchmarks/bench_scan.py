@@ -22,7 +22,8 @@ from vtestbed import cloud  # noqa: E402
 from vtestbed._open3d import o3d  # noqa: E402
 from vtestbed.transforms import invert  # noqa: E402
 from vtestbed.world.rig import Rig  # noqa: E402
-from vtestbed.world.scanner import BLOCK_GEOM, Scanner, ScanNoise  # noqa: E402
+from vtestbed.world.scan_noise import ScanNoise  # noqa: E402
+from vtestbed.world.scanner import BLOCK_GEOM, Scanner  # noqa: E402
 
 SPACING_M = 0.47e-3  # about 50k points on the block at 0.6 m
 

@@ -36,12 +36,12 @@ from vtestbed import montecarlo  # noqa: E402
 from vtestbed.campaigns import runner as sweep_module  # noqa: E402
 from vtestbed.campaigns.runner import SweepStats, sweep  # noqa: E402
 from vtestbed.campaigns.spec import parse_campaign  # noqa: E402
-from vtestbed.experiment import test_rng  # noqa: E402
 from vtestbed.researcher import cloud  # noqa: E402
 from vtestbed.researcher.kinematics import ArmKinematics  # noqa: E402
 from vtestbed.researcher.measure import identify_measurements, wrench_at_block  # noqa: E402
 from vtestbed.transforms import invert  # noqa: E402
-from vtestbed.world.scanner import ScanNoise  # noqa: E402
+from vtestbed.world.physics import test_rng  # noqa: E402
+from vtestbed.world.scan_noise import ScanNoise  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,7 +72,7 @@ def timed_sweep(c, **kwargs) -> tuple[float, SweepStats, float]:
 
 def trial_split(prepared, n_tests: int, repeats: int = 3) -> dict:
     """Seconds per test: noise draw, plane fits, Jacobian and wrench; identification per trial."""
-    kin = ArmKinematics(prepared.scenario.robot(), prepared.setup.block_in_flange)
+    kin = ArmKinematics(prepared.scenario.robot, prepared.setup.block_in_flange)
     setup, noise = prepared.setup, ScanNoise()
     tests = prepared.identification_tests()[:n_tests]
     t_noise = t_fit = t_rest = 0.0

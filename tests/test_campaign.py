@@ -10,9 +10,9 @@ import pytest
 from vtestbed.campaigns import montecarlo, posesets
 from vtestbed.campaigns.spec import AXES, POSE_SETS, load_campaign, parse_campaign, scaled_noise
 from vtestbed.design import criterion as poses
-from vtestbed.design import optimal as design
+from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.errors import ScenarioError
-from vtestbed.world.scanner import ScanNoise
+from vtestbed.world.scan_noise import ScanNoise
 
 ROOT = Path(__file__).resolve().parents[1]
 # the base scenario of the quick campaign (its own copy of 20 tests, stable under others' edits)
@@ -152,7 +152,7 @@ def generated():
 def test_generated_pose_sets_are_feasible_and_deterministic(generated):
     c, plans = generated
     assert set(plans) == {"kappa_regions:4", "random:4", "design_optimal:3", "design_optimal:4"}
-    robot = c.scenario.robot()
+    robot = c.scenario.robot
     # every test prepares in the truth world (montecarlo.prepare raises otherwise)
     prepared = montecarlo.prepare(plans["random:4"].scenario(c.scenario))
     assert len(prepared.tests) == 4
@@ -174,13 +174,19 @@ def test_generated_pose_sets_are_feasible_and_deterministic(generated):
 
 def test_design_optimal_beats_the_kappa_rule_on_its_own_criterion(generated):
     c, plans = generated
-    robot = c.scenario.robot()
-    d = {n: posesets.plan_quality(robot, plans[f"design_optimal:{n}"], n)["d_log_det_rel"] for n in (3, 4)}
-    kappa = posesets.plan_quality(robot, plans["kappa_regions:4"], 4)["d_log_det_rel"]
+    robot = c.scenario.robot
+    d = {
+        n: posesets.plan_quality(
+            robot, plans[f"design_optimal:{n}"], n, c.scenario.lab, PAPER_TABLE5.stiffness
+        )["d_log_det_rel"]
+        for n in (3, 4)
+    }
+    kappa = posesets.plan_quality(robot, plans["kappa_regions:4"], 4, c.scenario.lab, PAPER_TABLE5.stiffness)[
+        "d_log_det_rel"
+    ]
     assert d[4] >= kappa and d[4] > d[3]
     assert plans["design_optimal:4"].notes["criterion_value"] == pytest.approx(d[4], rel=1e-9)
     # its poses come from the kappa pool (same seeded stream as kappa_regions)
     pool = posesets.kappa_pool(robot, c.pose_sets, c.pose_set_rng("kappa_regions")).q
     for q in plans["design_optimal:4"].q:
         assert np.min(np.abs(pool - q).max(axis=1)) == 0.0
-    assert design.PAPER_STIFFNESS_NMM[0] == 2.1977e9

@@ -7,14 +7,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vtestbed.errors import OutOfRangeError, ScanError
+from vtestbed.ply import read_ply, write_ply
 from vtestbed.researcher.cloud import (
     FitParams,
     block_displacement,
     displacement_in_scanner,
     fit_block_frame,
     paper_displacement,
-    read_ply,
-    write_ply,
 )
 from vtestbed.transforms import (
     displacement,
@@ -24,7 +23,8 @@ from vtestbed.transforms import (
     rotation_vector,
 )
 from vtestbed.world.rig import Rig
-from vtestbed.world.scanner import BLOCK_GEOM, Scanner, ScanNoise
+from vtestbed.world.scan_noise import ScanNoise
+from vtestbed.world.scanner import BLOCK_GEOM, Scanner
 
 POSE_DEG = (0.0, -60.0, -20.0, 30.0, 50.0, 45.0)
 SIGMA0, GRAZING = 0.010e-3, 1.5

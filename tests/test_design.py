@@ -7,10 +7,14 @@ import numpy as np
 import pytest
 
 from vtestbed.design import optimal as design
+from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.errors import OutOfRangeError, UnknownNameError
 from vtestbed.researcher.identify import identify
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.world.rig import Rig
+from vtestbed.world.truth import load_truth
+
+K_TRUE = load_truth("kuka_kr60_3").stiffness_true  # N*m/rad, the world's truth
 
 # Poses from the usable regions Z1 and Z4 (DH, deg), as `vtestbed poses regions` draws them.
 POSES_DEG = [
@@ -77,7 +81,7 @@ def test_criteria_match_closed_forms_on_a_diagonal_design():
 
 @pytest.mark.parametrize("criterion", ["D", "A", "E"])
 def test_exchange_finds_the_exhaustive_optimum(robot, candidates, criterion):
-    k = np.array(design.PAPER_STIFFNESS_NMM) / 1e3
+    k = PAPER_TABLE5.stiffness
     pool = candidates[::4][:14]
     n = 3
 
@@ -108,7 +112,7 @@ def _monte_carlo_std(candidates, selection, k_true, sigma_p, sigma_r, seeds):
 
 def test_predicted_std_matches_monte_carlo_identifications(robot, candidates):
     """Required: within a factor 1.5 over >= 30 seeds; with 2000 seeds within 10%."""
-    k_true = robot.stiffness_true
+    k_true = K_TRUE
     sel = design.select_tests(candidates, 8, k_true, criterion="D")
     predicted = sel.report.stiffness_std
     ratio30 = _monte_carlo_std(candidates, sel, k_true, design.SIGMA_P, design.SIGMA_R, 30) / predicted
@@ -118,7 +122,7 @@ def test_predicted_std_matches_monte_carlo_identifications(robot, candidates):
 
 
 def test_a_design_beats_a_random_choice(robot, candidates):
-    k = robot.stiffness_true
+    k = K_TRUE
     chosen = design.select_tests(candidates, 6, k, criterion="A").report.a_value
     rng = np.random.default_rng(4)
     random = [design.evaluate([candidates[i] for i in rng.choice(len(candidates), 6, replace=False)], k).a_value
@@ -144,7 +148,7 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
     cands = []
     for q, anchor in zip(base.poses, base.load.anchors):
         cands += design.candidate_tests(robot, q[None], anchors=(anchor,), lab=lab)
-    selection = design.select_tests(cands, 8, robot.stiffness_true, criterion="D", method="exchange")
+    selection = design.select_tests(cands, 8, K_TRUE, criterion="D", method="exchange")
     chosen = [cands[i] for i in selection.indices]
     data = {"name": "design", "seed": 11, **tomllib.loads(design.scenario_toml(chosen))}
     prepared = prepare(parse_scenario(data, "design.toml"))
@@ -159,7 +163,7 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
         estimates.append(res.stiffness)
     errors = np.concatenate(errors)
     sigma_p, sigma_r = np.sqrt(np.mean(errors[:, :3] ** 2)), np.sqrt(np.mean(errors[:, 3:] ** 2))
-    predicted = design.evaluate(chosen, robot.stiffness_true, sigma_p, sigma_r).stiffness_std
+    predicted = design.evaluate(chosen, K_TRUE, sigma_p, sigma_r).stiffness_std
     ratio = np.std(estimates, axis=0, ddof=1) / predicted
     print(
         f"\nscan displacement noise: {sigma_p * 1e6:.2f} um, {sigma_r * 1e6:.2f} urad; "
@@ -169,7 +173,7 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
 
 
 def test_bad_input_is_refused(robot, candidates):
-    k = robot.stiffness_true
+    k = K_TRUE
     with pytest.raises(UnknownNameError, match="valid names: A, D, E"):
         design.select_tests(candidates, 3, k, criterion="G")
     with pytest.raises(OutOfRangeError, match=r"n = 999 tests is outside the valid range \[1, "):
@@ -189,7 +193,7 @@ def test_chosen_tests_make_a_valid_scenario(robot, candidates):
 
     from vtestbed.scenario import parse_scenario
 
-    sel = design.select_tests(candidates, 5, robot.stiffness_true)
+    sel = design.select_tests(candidates, 5, K_TRUE)
     chosen = [candidates[i] for i in sel.indices]
     data = tomllib.loads(design.scenario_toml(chosen)) | {"name": "designed"}
     scen = parse_scenario(data)

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtestbed import cli
+from vtestbed import cli, ply
 from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed.dataset import read_tests
 from vtestbed.errors import DatasetError, ScanError
 from vtestbed.experiment import identify_dataset, run, simulate
-from vtestbed.researcher import cloud
 from vtestbed.scenario import load_scenario, parse_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -148,7 +147,7 @@ def test_broken_datasets_get_clear_errors(small_run, tmp_path):
 
     d = _copy_dataset(src, tmp_path / "no_block")
     far = np.random.default_rng(0).uniform(-0.1, 0.1, (5000, 3)) + [3.0, 0.0, 2.0]
-    cloud.write_ply(d / "clouds" / "T002_unloaded.ply", far)
+    ply.write_ply(d / "clouds" / "T002_unloaded.ply", far)
     with pytest.raises(ScanError, match=r"test T002, unloaded cloud"):
         identify_dataset(d)
 

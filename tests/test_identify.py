@@ -6,6 +6,9 @@ import pytest
 from vtestbed.errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
 from vtestbed.researcher.identify import a_matrix, identify, stack
 from vtestbed.researcher.kinematics import ArmKinematics
+from vtestbed.world.truth import load_truth
+
+K_TRUE = load_truth("kuka_kr60_3").stiffness_true  # N*m/rad, the world's truth
 
 SIGMA = np.array([2e-6, 2e-6, 2e-6, 2e-5, 2e-5, 2e-5])  # m, rad
 
@@ -22,7 +25,7 @@ def _tests(robot, lab, rng, count):
 
 def test_a_matrix_is_the_compliance_model(robot, lab, rng):
     jac, wrench = _tests(robot, lab, rng, 1)
-    c = 1.0 / robot.stiffness_true
+    c = 1.0 / K_TRUE
     closed_form = jac[0] @ np.diag(c) @ jac[0].T @ wrench[0]
     np.testing.assert_allclose(a_matrix(jac[0], wrench[0]) @ c, closed_form, rtol=1e-12)
 
@@ -30,22 +33,22 @@ def test_a_matrix_is_the_compliance_model(robot, lab, rng):
 @pytest.mark.parametrize("method", ["ols", "fgls"])
 def test_noise_free_data_gives_the_true_stiffness(robot, lab, rng, method):
     jac, wrench = _tests(robot, lab, rng, 8)
-    d = (stack(jac, wrench) @ (1.0 / robot.stiffness_true)).reshape(8, 6)
+    d = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(8, 6)
     res = identify(jac, wrench, d, method=method)
-    np.testing.assert_allclose(res.stiffness, robot.stiffness_true, rtol=1e-9)
+    np.testing.assert_allclose(res.stiffness, K_TRUE, rtol=1e-9)
     assert res.condition_number < 1e3 and not res.warnings
 
 
 def test_fgls_standard_deviation_is_honest_and_ols_is_not(robot, lab):
     rng = np.random.default_rng(5)
     jac, wrench = _tests(robot, lab, rng, 20)
-    d0 = (stack(jac, wrench) @ (1.0 / robot.stiffness_true)).reshape(20, 6)
+    d0 = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(20, 6)
     z = {"fgls": [], "ols": []}
     for _ in range(200):
         d = d0 + rng.normal(size=d0.shape) * SIGMA
         for method in z:
             res = identify(jac, wrench, d, method=method)
-            z[method].append((res.stiffness - robot.stiffness_true) / res.stiffness_std)
+            z[method].append((res.stiffness - K_TRUE) / res.stiffness_std)
     fgls, ols = np.std(z["fgls"], axis=0), np.std(z["ols"], axis=0)
     print(f"\nz-score std per joint: fgls {np.round(fgls, 2)}, ols {np.round(ols, 2)}")
     assert np.all((fgls > 0.8) & (fgls < 1.25))
@@ -56,7 +59,7 @@ def test_fgls_standard_deviation_is_honest_and_ols_is_not(robot, lab):
 def test_wls_with_the_true_covariance_matches_its_prediction(robot, lab):
     rng = np.random.default_rng(6)
     jac, wrench = _tests(robot, lab, rng, 12)
-    c_true = 1.0 / robot.stiffness_true
+    c_true = 1.0 / K_TRUE
     d0 = (stack(jac, wrench) @ c_true).reshape(12, 6)
     cov = np.diag(SIGMA**2)
     est = []
@@ -78,13 +81,11 @@ def test_error_shrinks_as_one_over_sqrt_n(robot, lab):
     jac, wrench = _tests(robot, lab, rng, 10)
     # the same ten tests repeated: only the count changes, not the design
     jac, wrench = np.tile(jac, (4, 1, 1)), np.tile(wrench, (4, 1))
-    d0 = (stack(jac, wrench) @ (1.0 / robot.stiffness_true)).reshape(40, 6)
+    d0 = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(40, 6)
     spread = {}
     for n in (10, 40):
         errs = [
-            identify(jac[:n], wrench[:n], d0[:n] + rng.normal(size=(n, 6)) * SIGMA).stiffness
-            / robot.stiffness_true
-            - 1
+            identify(jac[:n], wrench[:n], d0[:n] + rng.normal(size=(n, 6)) * SIGMA).stiffness / K_TRUE - 1
             for _ in range(300)
         ]
         spread[n] = np.std(errs, axis=0)
@@ -118,7 +119,7 @@ def test_tests_that_barely_load_a_joint_are_flagged_ill_conditioned(robot, lab, 
     for t in range(4):  # remove (almost) all torque on joint 1: its compliance is then unobservable
         col = jac[t][:, 0]
         wrench[t] -= 0.9999 * col * (col @ wrench[t]) / (col @ col)
-    d = (stack(jac, wrench) @ (1.0 / robot.stiffness_true)).reshape(4, 6) + rng.normal(size=(4, 6)) * SIGMA
+    d = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(4, 6) + rng.normal(size=(4, 6)) * SIGMA
     with pytest.warns(UserWarning, match="ill-conditioned"):
         res = identify(jac, wrench, d, method="ols")
     assert res.condition_number > 1e3

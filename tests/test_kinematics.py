@@ -9,8 +9,8 @@ from vtestbed.world import mjcf
 
 
 @pytest.fixture(scope="module")
-def world(robot, lab):
-    model = mjcf.build_scene_spec(robot, lab).compile()
+def world(robot, truth, lab):
+    model = mjcf.build_scene_spec(robot, truth, lab).compile()
     return model, mujoco.MjData(model)
 
 

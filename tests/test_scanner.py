@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from vtestbed.errors import DatasetError, OutOfRangeError, ScanError
-from vtestbed.researcher.cloud import read_ply, write_ply
+from vtestbed.ply import read_ply, write_ply
 from vtestbed.transforms import homogeneous, invert, rotation_vector
 from vtestbed.world.rig import Rig
-from vtestbed.world.scanner import BLOCK_GEOM, Scanner, ScanNoise
+from vtestbed.world.scan_noise import ScanNoise
+from vtestbed.world.scanner import BLOCK_GEOM, Scanner
 
 POSE_DEG = (0.0, -60.0, -20.0, 30.0, 50.0, 45.0)
 

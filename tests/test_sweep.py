@@ -18,11 +18,12 @@ import pytest
 
 from vtestbed.campaigns import montecarlo
 from vtestbed.campaigns.report import cell_summary, pose_choice, spread_check, trend_checks, write_report
-from vtestbed.campaigns.runner import TRIALS_DIR, SweepError, SweepStats, read_results, sweep
+from vtestbed.campaigns.runner import SweepStats, sweep
 from vtestbed.campaigns.spec import parse_campaign, scaled_noise
+from vtestbed.campaigns.store import TRIALS_DIR, SweepError, read_results
 from vtestbed.cli.main import main
 from vtestbed.lab import LabSetup
-from vtestbed.world.scanner import ScanNoise
+from vtestbed.world.scan_noise import ScanNoise
 from vtestbed.world.sensors import ForceTorqueSensor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -102,7 +103,7 @@ def test_interrupted_campaign_resumes_without_loss_or_duplicates(reference, tmp_
     path = tmp_path / "tiny.toml"
     path.write_text(BASE_TEXT + TINY_TOML)
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "vtestbed.cli.main", "sweep", str(path), "--out", str(out), "--workers", str(workers),
+    cmd = [sys.executable, "-m", "vtestbed", "sweep", str(path), "--out", str(out), "--workers", str(workers),
            "--batch-trials", "1", "--no-report", "--quiet"]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120

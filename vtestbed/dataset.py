@@ -6,7 +6,8 @@ A dataset is a folder::
     tests.csv      one row per test: commanded pose, F/T readings unloaded and loaded, the two
                    point-cloud files; column ``group`` is ``identification`` or ``validation``
     clouds/*.ply   the scans, in the scanner frame, metres
-    truth.json     only in simulated datasets; identification never reads it
+    truth.json     only in simulated datasets; identification never reads it (the world writes
+                   it, :mod:`vtestbed.comparison` reads it)
 
 Units are in the column names (deg, N, Nm). Rows are appended as each test finishes, so an
 interrupted simulation keeps every finished test.
@@ -22,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DatasetError, SensorOverloadError
-from .lab import ForceSensorSpec
+from .files import read_json
+from .lab import WRENCH_AXES, ForceSensorSpec
 from .transforms import homogeneous, matrix_from_rotation_vector, rotation_vector
-from .world.sensors import AXES, check_wrench_range
 
 FORMAT = "vtestbed-dataset/1"
 SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"
@@ -33,7 +34,7 @@ _UNIT = {"F": "N", "T": "Nm"}
 
 
 def wrench_columns(prefix: str) -> list[str]:
-    return [f"{prefix}_{axis}_{_UNIT[axis[0]]}" for axis in AXES]
+    return [f"{prefix}_{axis}_{_UNIT[axis[0]]}" for axis in WRENCH_AXES]
 
 
 def pose_columns(dof: int = 6) -> list[str]:
@@ -119,15 +120,6 @@ def scanner_pose_as_recorded(pose: np.ndarray) -> np.ndarray:
     return homogeneous(matrix_from_rotation_vector(rotation_vector(pose[:3, :3])), pose[:3, 3])
 
 
-def _read_json(path: Path, what: str) -> dict:
-    if not path.is_file():
-        raise DatasetError(f"{what} {path} is missing")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON: {exc}") from None
-
-
 def _matrix(value, path: Path, name: str) -> np.ndarray:
     m = np.asarray(value, dtype=float)
     if (
@@ -142,7 +134,7 @@ def _matrix(value, path: Path, name: str) -> np.ndarray:
 def read_setup(root: str | Path) -> DatasetSetup:
     root = Path(root)
     path = root / SETUP_FILE
-    data = _read_json(path, "dataset setup file")
+    data = read_json(path, "dataset setup file", DatasetError)
     for key in (
         "robot",
         "angle_convention",
@@ -237,7 +229,7 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
             spec = ForceSensorSpec(wrench_range=tuple(sensor_range))
             for label, w in (("unloaded", wu), ("loaded", wl)):
                 try:
-                    check_wrench_range(w, spec, f"{where}: {label} wrench")
+                    spec.check(w, f"{where}: {label} wrench")
                 except SensorOverloadError as exc:
                     raise DatasetError(str(exc)) from None
         clouds = (root / row["cloud_unloaded"], root / row["cloud_loaded"])
@@ -258,8 +250,3 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
         dup = sorted({i for i in ids if ids.count(i) > 1})
         raise DatasetError(f"{path}: duplicate test ids {dup}")
     return records
-
-
-def read_truth(root: str | Path) -> dict | None:
-    path = Path(root) / TRUTH_FILE
-    return json.loads(path.read_text()) if path.is_file() else None

@@ -52,6 +52,10 @@ class ScenarioError(VtestbedError, ValueError):
     """A malformed scenario or campaign file."""
 
 
+class DescriptionError(VtestbedError, ValueError):
+    """A malformed robot description (robot.toml) or world truth (truth.toml) file."""
+
+
 class DatasetError(VtestbedError, ValueError):
     """A measurement dataset that is missing files or is inconsistent."""
 

@@ -1,8 +1,11 @@
 """Run a scenario: the world writes a dataset, the researcher's code identifies from it.
 
-``simulate`` drives the truth world (:mod:`vtestbed.rig`, the scanner, the F/T sensor) and
-writes a lab-compatible dataset plus a separate ``truth.json``. ``run`` then identifies from the
-dataset alone (:mod:`vtestbed.analysis`) and only afterwards compares with the truth.
+The orchestrator of one scenario, and one of the few modules that may touch both sides:
+``simulate`` drives the truth world (:mod:`vtestbed.world`: rig, scanner, F/T sensor, one test's
+physics in :mod:`vtestbed.world.physics`) and writes a lab-compatible dataset plus a separate
+``truth.json``. ``identify_dataset`` is the researcher's job on any dataset
+(:mod:`vtestbed.researcher`), and ``run`` does both, then compares with the truth
+(:mod:`vtestbed.comparison`) only after identification.
 
 Reproducibility: test ``i`` of group ``g`` draws from ``SeedSequence(seed, spawn_key=(g, i))``,
 so a test's numbers do not depend on which other tests ran before it, and a resumed run gives
@@ -11,25 +14,28 @@ the same dataset as an uninterrupted one.
 
 from __future__ import annotations
 
-import json
-import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import comparison, ply
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
 from .errors import DatasetError
+from .files import read_json, write_json_atomic
 from .lab import LabSetup
-from .researcher import cloud
-from .researcher.measure import displacement_in_block_frame
+from .researcher import report
+from .researcher.measure import identify_measurements, load_measurements
+from .robots import load_robot
 from .scenario import Scenario
-from .world.rig import Rig, RigState
-from .world.scanner import ScanGeometry, Scanner, ScanNoise
+from .world.physics import draw_readings, run_test_physics, test_rng
+from .world.rig import Rig
 from .world.sensors import ForceTorqueSensor
+from .world.truth import load_truth
 
-GROUP_KEYS = {"identification": 0, "validation": 1}
+__all__ = ["Timings", "dataset_setup", "identify_dataset", "run", "simulate", "test_id"]
 
 
 @dataclass
@@ -47,10 +53,6 @@ class Timings:
         return {k: round(v, 4) for k, v in self.__dict__.items()}
 
 
-def test_rng(seed: int, group: str, index: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(GROUP_KEYS[group], index)))
-
-
 def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
     return DatasetSetup(
         robot=scenario.robot_name,
@@ -64,73 +66,13 @@ def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
     )
 
 
-def scanner_placement(scenario: Scenario) -> dict:
-    """Keyword arguments of :meth:`Scanner.place` that the scenario sets."""
-    return {} if scenario.scanner.spacing is None else {"point_spacing_m": scenario.scanner.spacing}
-
-
-@dataclass(frozen=True)
-class TestPhysics:
-    """One test in the truth world, before any noise: both equilibria and both ray casts."""
-
-    unloaded: RigState
-    loaded: RigState
-    scanner: Scanner
-    hits_unloaded: ScanGeometry
-    hits_loaded: ScanGeometry
-
-    @property
-    def displacement_true(self) -> np.ndarray:
-        """(6,) true block displacement in the unloaded block frame [m, rad]."""
-        return displacement_in_block_frame(self.unloaded.block_pose, self.loaded.block_pose)
-
-
-def run_test_physics(
-    rig: Rig, q, hook: str, anchor: str, tension: float, distance: float, placement: dict, timings=None
-) -> TestPhysics:
-    """Command, hook, solve, place the scanner and cast; tighten and cast again (deterministic).
-
-    Raises the world's VtestbedError when the test cannot be run (scanner view, sensor range).
-    """
-    t0 = time.perf_counter()
-    rig.command(q)
-    rig.hook(hook, anchor)
-    s0 = rig.solve()
-    t1 = time.perf_counter()
-    scanner = Scanner.place(rig.lab, s0.block_pose, distance_m=distance, **placement)
-    hits0 = scanner.cast(rig.model, rig.data)
-    t2 = time.perf_counter()
-    s1 = rig.tighten(tension)
-    t3 = time.perf_counter()
-    hits1 = scanner.cast(rig.model, rig.data)
-    if timings is not None:
-        timings.physics += (t1 - t0) + (t3 - t2)
-        timings.scan += (t2 - t1) + (time.perf_counter() - t3)
-    return TestPhysics(s0, s1, scanner, hits0, hits1)
-
-
-def draw_readings(hits_unloaded, hits_loaded, wrench_unloaded, wrench_loaded, noise, sensor, rng):
-    """One test's noisy measurements, drawn in a fixed order: scan, F/T, scan, F/T.
-
-    ``noise=None`` is a perfect scanner (it draws nothing). Returns (cloud0, w0, cloud1, w1).
-    """
-    cloud0 = noise.apply(hits_unloaded, rng) if noise is not None else hits_unloaded.points_m.copy()
-    w0 = sensor.read(wrench_unloaded, rng)
-    cloud1 = noise.apply(hits_loaded, rng) if noise is not None else hits_loaded.points_m.copy()
-    w1 = sensor.read(wrench_loaded, rng)
-    return cloud0, w0, cloud1, w1
-
-
-def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+def test_id(group: str, index: int) -> str:
+    """``T001``, ``T002``, ... for identification tests, ``V001``, ... for validation tests."""
+    return f"{'T' if group == 'identification' else 'V'}{index + 1:03d}"
 
 
 def _remove_dataset(out: Path) -> None:
     """Delete the files a simulation writes in ``out`` (and nothing else)."""
-    import shutil
-
     for name in (TRUTH_FILE, "tests.csv", "setup.json"):
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / CLOUD_DIR, ignore_errors=True)
@@ -139,7 +81,7 @@ def _remove_dataset(out: Path) -> None:
 def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = False) -> dict:
     truth_path = out / TRUTH_FILE
     if truth_path.exists():
-        truth = json.loads(truth_path.read_text())
+        truth = read_json(truth_path, "truth file", DatasetError)
         if truth.get("scenario_fingerprint") != scenario.fingerprint and replace_stale:
             _remove_dataset(out)
             return _start_truth(out, scenario, rig)
@@ -155,7 +97,7 @@ def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = 
         "seed": scenario.seed,
         "robot": scenario.robot_name,
         "joint_names": list(rig.robot.joint_names),
-        "stiffness_true_Nm_per_rad": rig.robot.stiffness_true.tolist(),
+        "stiffness_true_Nm_per_rad": rig.truth.stiffness_true.tolist(),
         "effects": [],
         "tests": {},
     }
@@ -175,14 +117,14 @@ def simulate(
     """
     out = Path(out)
     timings = timings or Timings()
-    lab = LabSetup()
-    rig = Rig(scenario.robot(), lab)
+    lab = scenario.lab
+    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name))
     out.mkdir(parents=True, exist_ok=True)
     truth = _start_truth(out, scenario, rig, replace_stale)
     write_setup(out, dataset_setup(scenario, lab))
-    noise = ScanNoise(**scenario.scanner.noise_params) if scenario.scanner.noise else None
+    noise = scenario.scanner.noise_model
     sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
-    placement = scanner_placement(scenario)
+    placement = scenario.scanner.placement
     jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
     jobs += [("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)]
     bar = None
@@ -192,8 +134,8 @@ def simulate(
         bar = tqdm(total=len(jobs), desc="simulate", unit="test")
     with TestWriter(out) as writer:
         for group, i, q, load in jobs:
-            test_id = f"{'T' if group == 'identification' else 'V'}{i + 1:03d}"
-            if test_id not in writer.done:
+            tid = test_id(group, i)
+            if tid not in writer.done:
                 rng = test_rng(scenario.seed, group, i)
                 phys = run_test_physics(
                     rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
@@ -213,12 +155,12 @@ def simulate(
                 t4 = time.perf_counter()
                 timings.scan += t4 - t3
                 paths = (
-                    out / CLOUD_DIR / f"{test_id}_unloaded.ply",
-                    out / CLOUD_DIR / f"{test_id}_loaded.ply",
+                    out / CLOUD_DIR / f"{tid}_unloaded.ply",
+                    out / CLOUD_DIR / f"{tid}_loaded.ply",
                 )
-                cloud.write_ply(paths[0], cloud0)
-                cloud.write_ply(paths[1], cloud1)
-                truth["tests"][test_id] = {
+                ply.write_ply(paths[0], cloud0)
+                ply.write_ply(paths[1], cloud1)
+                truth["tests"][tid] = {
                     "group": group,
                     "hook": load.hooks[i],
                     "anchor": load.anchors[i],
@@ -234,9 +176,9 @@ def simulate(
                     "scanner_pose_world": scanner.pose_world.tolist(),
                     "points": [len(cloud0), len(cloud1)],
                 }
-                _write_json_atomic(out / TRUTH_FILE, truth)
+                write_json_atomic(out / TRUTH_FILE, truth)
                 # the row is written last: it marks the test as finished
-                writer.append(TestRecord(test_id, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
+                writer.append(TestRecord(tid, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
                 t5 = time.perf_counter()
                 timings.write += t5 - t4
             if bar:
@@ -250,9 +192,6 @@ def identify_dataset(
     root: str | Path, method: str = "fgls", progress: bool = False, timings: Timings | None = None
 ):
     """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult)."""
-    from .researcher.measure import identify_measurements, load_measurements
-    from .robots import load_robot
-
     timings = timings or Timings()
     bar = None
     if progress:
@@ -286,24 +225,21 @@ def run(
     replace_stale: bool = False,
 ) -> dict:
     """simulate + identify + compare; writes ``out/result.json`` and figures; returns the result."""
-    from .dataset import read_truth
-    from .researcher import report
-
     out = Path(out)
     timings = Timings()
     simulate(scenario, out / "dataset", progress=progress, timings=timings, replace_stale=replace_stale)
     setup, measurements, result = identify_dataset(out / "dataset", scenario.method, progress, timings)
     t0 = time.perf_counter()
-    truth = read_truth(out / "dataset")
-    joints = report.compare(result, truth)
+    truth = comparison.read_truth(out / "dataset")
+    joints = comparison.compare(result, truth)
     k_true = np.array([j["k_true"] for j in joints])
     conv = report.convergence(measurements, scenario.method, result.joint_names)
-    ranges = report.error_ranges(conv, k_true)
+    ranges = comparison.error_ranges(conv, k_true)
     val = report.validation(measurements, result.stiffness)
     files = {}
     if figures:
         files["convergence"] = str(
-            report.plot_convergence(conv, k_true, result.joint_names, out / "convergence.png")
+            report.plot_convergence(conv, result.joint_names, out / "convergence.png", reference=k_true)
         )
         if val:
             files["validation"] = str(report.plot_validation(val, out / "validation.png"))
@@ -314,13 +250,13 @@ def run(
         "n_tests": result.n_tests,
         "method": result.method,
         "joints": joints,
-        "table5": {"first_n": report.PAPER_FIRST_N, **ranges},
+        "table5": {"first_n": comparison.PAPER_FIRST_N, **ranges},
         "identification": result.as_dict(),
         "convergence": conv,
         "validation": val,
         "figures": files,
         "timings_s": timings.as_dict(),
     }
-    (out / "result.json").write_text(json.dumps(summary, indent=1))
-    summary["table"] = report.table5(joints, ranges, n_tests=result.n_tests)
+    write_json_atomic(out / "result.json", summary)
+    summary["table"] = comparison.table5(joints, ranges, n_tests=result.n_tests)
     return summary

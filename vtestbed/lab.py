@@ -1,19 +1,33 @@
-"""The lab around the robot: force sensor, target block, table with rings, and the wire.
+"""The lab around the robot: force sensor, target block, table with rings, wire and scanner.
 
 Values are frozen dataclasses in SI units whose defaults follow the paper's setup (ATI
-SI-330-30 sensor, a steel wire to a ring on a table). The block frame ``B`` is the frame the
-scanner pipeline measures: its origin is the block corner where the three scanned faces meet
-and its axes are the outward normals of those faces (parallel to the flange axes).
+SI-330-30 sensor, a steel wire to a ring on a table, a VTOP 200B scanner). The block frame ``B``
+is the frame the scanner pipeline measures: its origin is the block corner where the three
+scanned faces meet and its axes are the outward normals of those faces (parallel to the flange
+axes).
+
+Both sides read this module: the world builds its scene from a :class:`LabSetup`, the
+researcher knows the same layout as nominal data. It is also the one home of the lab's defaults
+and rules: the wire tension a test may use (:meth:`LabSetup.check_tension`), the measuring range
+of the force sensor (:meth:`ForceSensorSpec.check`) and the scanner's stand-off
+(:data:`DEFAULT_SCANNER_DISTANCE_M`, :attr:`ScannerSpec.working_distance_m`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import UnknownNameError
+from .errors import OutOfRangeError, SensorOverloadError, UnknownNameError
 from .transforms import homogeneous
+
+WRENCH_AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+WRENCH_UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
+DEFAULT_TENSION_N = 200.0  # the paper's wire load
+MIN_TENSION_N = 1.0  # below this a steel wire is not reliably taut
+DEFAULT_SCANNER_DISTANCE_M = 0.6  # scanner optical centre to block centre
 
 
 @dataclass(frozen=True)
@@ -34,6 +48,24 @@ class ForceSensorSpec:
         """Measurement origin: centre of the tool-side face, on the flange z axis [m]."""
         return np.array([0.0, 0.0, self.adapter_thickness + self.height])
 
+    @property
+    def max_force(self) -> float:
+        """Largest force [N] the sensor measures on any axis."""
+        return max(self.wrench_range[:3])
+
+    def check(self, wrench, field_name: str = "wrench") -> np.ndarray:
+        """Return ``wrench`` (6,) [N, N*m] or raise :class:`SensorOverloadError` naming the axis."""
+        wrench = np.asarray(wrench, dtype=float)
+        if wrench.shape != (6,) or not np.all(np.isfinite(wrench)):
+            raise SensorOverloadError(f"{field_name} must be 6 finite numbers (Fx..Tz), got {wrench!r}")
+        for axis, unit, value, limit in zip(WRENCH_AXES, WRENCH_UNITS, wrench, self.wrench_range):
+            if not abs(value) <= limit:  # a NaN limit refuses, never silently accepts
+                raise SensorOverloadError(
+                    f"{field_name}: {axis} = {value:.2f} {unit} is outside the measuring range "
+                    f"[-{limit:g}, {limit:g}] {unit} of the {self.name}"
+                )
+        return wrench
+
 
 @dataclass(frozen=True)
 class BlockSpec:
@@ -43,15 +75,17 @@ class BlockSpec:
     density: float = 2700.0  # kg/m^3
     standoff: float = 0.02  # m, stem between the sensor's tool face and the block
     stem_mass: float = 0.15  # kg
-    # Hook points in the block frame B [m]; B's origin is the scanned corner, the block
-    # occupies [-edge, 0]^3. Hooks sit on the hidden faces, off the sensor axis.
-    hooks: dict[str, tuple[float, float, float]] = field(
-        default_factory=lambda: {
-            "hook_x": (-0.08, -0.04, -0.04),  # centre of the -x face
-            "hook_y": (-0.04, -0.08, -0.04),  # centre of the -y face
-            "hook_edge": (-0.08, -0.08, -0.04),  # middle of the -x/-y edge
+
+    @property
+    def hooks(self) -> dict[str, tuple[float, float, float]]:
+        """Hook points in the block frame B [m]. B's origin is the scanned corner and the block
+        occupies [-edge, 0]^3; the hooks sit on the hidden faces, off the sensor axis."""
+        e, h = -self.edge, -self.edge / 2
+        return {
+            "hook_x": (e, h, h),  # centre of the -x face
+            "hook_y": (h, e, h),  # centre of the -y face
+            "hook_edge": (e, e, h),  # middle of the -x/-y edge
         }
-    )
 
     @property
     def mass(self) -> float:
@@ -99,6 +133,19 @@ class WireSpec:
 
 
 @dataclass(frozen=True)
+class ScannerSpec:
+    """Datasheet of the scanner (paper Table 3, TECHLEGO VTOP 200B), SI units."""
+
+    name: str = "TECHLEGO VTOP 200B"
+    working_distance_m: tuple[float, float] = (0.100, 1.250)
+    area_min_m: tuple[float, float] = (0.050, 0.038)  # smallest measuring area (width, height)
+    area_max_m: tuple[float, float] = (0.450, 0.342)  # largest measuring area
+    point_spacing_m: tuple[float, float] = (0.02e-3, 0.5e-3)
+    resolution_px: tuple[int, int] = (2592, 1944)  # "5 million pixels, monochrome"
+    accuracy_m: tuple[float, float] = (0.010e-3, 0.015e-3)  # the default noise model's source
+
+
+@dataclass(frozen=True)
 class LabSetup:
     """Everything bolted around the robot."""
 
@@ -106,6 +153,24 @@ class LabSetup:
     block: BlockSpec = field(default_factory=BlockSpec)
     table: TableSpec = field(default_factory=TableSpec)
     wire: WireSpec = field(default_factory=WireSpec)
+    scanner: ScannerSpec = field(default_factory=ScannerSpec)
+
+    @property
+    def tension_range_N(self) -> tuple[float, float]:
+        """Wire tensions [N] a test may use: taut, and measurable by the force sensor."""
+        return MIN_TENSION_N, self.sensor.max_force
+
+    def check_tension(self, tension, field_name: str = "tension_N") -> float:
+        """Return ``tension`` [N] or raise :class:`OutOfRangeError` naming the field and range."""
+        low, high = self.tension_range_N
+        if isinstance(tension, bool) or not isinstance(tension, int | float | np.floating | np.integer):
+            raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] N, got {tension!r}")
+        if not low <= tension <= high:  # also refuses NaN
+            raise OutOfRangeError(
+                f"{field_name} = {tension:g} N is outside the valid range [{low:g}, {high:g}] N (taut, and "
+                f"at most the {self.sensor.name}'s {high:g} N on any axis)"
+            )
+        return float(tension)
 
     @property
     def block_in_flange(self) -> np.ndarray:
@@ -118,3 +183,56 @@ class LabSetup:
     def sensor_in_flange(self) -> np.ndarray:
         """(4, 4) pose of the force sensor's measurement frame in the flange frame."""
         return homogeneous(np.eye(3), self.sensor.origin_in_flange)
+
+
+PAPER_LAB = LabSetup()  # the paper's lab: the one default when no scenario gives a lab
+
+
+# What a scenario's [lab] table may override: table -> key -> (dataclass field, length or None, low, high).
+# Lengths: None for a number, an int for a fixed-length list, 0 for a list of any length >= 1.
+LAB_FIELDS = {
+    "table": {
+        "center_m": ("center", 2, -10.0, 10.0),
+        "size_m": ("size", 2, 0.1, 10.0),
+        "height_m": ("height", None, 0.0, 3.0),
+        "ring_x_m": ("ring_x", 0, -10.0, 10.0),
+        "ring_y_m": ("ring_y", 0, -10.0, 10.0),
+    },
+    "block": {
+        "edge_m": ("edge", None, 0.02, 0.3),
+        "density_kg_m3": ("density", None, 100.0, 25000.0),
+        "standoff_m": ("standoff", None, 0.0, 0.5),
+    },
+    "force_sensor": {"range_N_Nm": ("wrench_range", 6, 1e-3, 1e6)},
+    "wire": {"axial_rigidity_N": ("axial_rigidity", None, 1e3, 1e9)},
+}
+_LAB_PARTS = {"table": "table", "block": "block", "force_sensor": "sensor", "wire": "wire"}
+
+
+def parse_lab(table, fields) -> LabSetup:
+    """The lab of a scenario: the paper's :class:`LabSetup` with the ``[lab]`` table's overrides.
+
+    ``fields`` is a :class:`vtestbed.schema.Fields` bound to the scenario file; every key and
+    range is in :data:`LAB_FIELDS`, and errors name the field (``lab.table.height_m``).
+    """
+
+    fields.table(table, "lab", tuple(LAB_FIELDS))
+    lab = PAPER_LAB
+    for part, keys in LAB_FIELDS.items():
+        given = fields.table(table.get(part, {}), f"lab.{part}", tuple(keys))
+        changes = {}
+        for key, value in given.items():
+            name, length, low, high = keys[key]
+            where = f"lab.{part}.{key}"
+            if length is None:
+                changes[name] = fields.number(value, where, low, high)
+            elif length == 0:
+                if not isinstance(value, list) or not value:
+                    raise fields.error(where, f"must be a non-empty list of numbers in [{low:g}, {high:g}]")
+                changes[name] = fields.vector(value, where, len(value), low, high)
+            else:
+                changes[name] = fields.vector(value, where, length, low, high)
+        if changes:
+            attr = _LAB_PARTS[part]
+            lab = dataclasses.replace(lab, **{attr: dataclasses.replace(getattr(lab, attr), **changes)})
+    return lab

@@ -1,21 +1,25 @@
-"""Robot descriptions: modified-DH table, limits, inertias and true stiffness, as data.
+"""Nominal robot descriptions: modified-DH table, limits and inertias, as data.
 
-A description is read from ``models/<name>/robot.toml``. It is the one source from which both
-the truth world (MuJoCo, :mod:`vtestbed.mjcf`) and the researcher's model (Pinocchio,
-:mod:`vtestbed.kinematics`) are built. The true stiffness lives here too, but only the world
-and the reports read it; the identification side never does.
+A description is read from ``models/<name>/robot.toml``. It is what a researcher knows of the
+robot, and the one source from which both the truth world (MuJoCo, :mod:`vtestbed.world.mjcf`)
+and the researcher's model (Pinocchio, :mod:`vtestbed.researcher.kinematics`) are built. It holds
+no stiffness: the world's truth (true stiffness, hidden effects) is a separate file,
+``models/<name>/truth.toml``, read only by :mod:`vtestbed.world.truth`.
+
+Units: SI (m, kg, kg*m^2); angles in rad, except in the file where the key says ``_deg``.
 """
 
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 
-from .errors import JointLimitError, ScenarioError, UnknownNameError
+from .errors import DescriptionError, JointLimitError, UnknownNameError
+from .files import read_toml
 from .transforms import modified_dh
 
 MODELS_DIR = Path(os.environ.get("VTESTBED_MODELS", Path(__file__).resolve().parents[1] / "models"))
@@ -34,9 +38,6 @@ class JointDescription:
     controller_offset: float  # rad: theta = sign * A + offset
     lower: float  # rad, DH convention
     upper: float  # rad, DH convention
-    stiffness_true: float  # N*m/rad
-    damping: float  # N*m*s/rad, only for dynamic settling
-    armature: float  # kg*m^2, only for dynamic settling
     mass: float  # kg
     com: tuple[float, float, float]  # m, in the link's DH frame
     inertia_diag: tuple[float, float, float]  # kg*m^2, about the com, DH-frame axes
@@ -69,11 +70,6 @@ class RobotDescription:
     def upper(self) -> np.ndarray:
         """DH upper limits [rad], shape (n,)."""
         return np.array([j.upper for j in self.joints])
-
-    @property
-    def stiffness_true(self) -> np.ndarray:
-        """Ground-truth joint stiffness [N*m/rad], shape (n,). Truth: reports and world only."""
-        return np.array([j.stiffness_true for j in self.joints])
 
     @property
     def total_mass(self) -> float:
@@ -124,6 +120,9 @@ def available_robots() -> list[str]:
 
 
 def robot_dir(name: str) -> Path:
+    """The folder ``models/<name>``; an unknown name lists the available robots."""
+    if not isinstance(name, str) or not name or "/" in name or "\\" in name or name.startswith("."):
+        raise UnknownNameError("robot", str(name), available_robots())
     path = MODELS_DIR / name
     if not (path / "robot.toml").is_file():
         raise UnknownNameError("robot", name, available_robots())
@@ -132,18 +131,17 @@ def robot_dir(name: str) -> Path:
 
 _FIELDS = (
     "name controller alpha_prev_deg a_prev_m d_m controller_sign controller_offset_deg "
-    "controller_limits_deg stiffness_true_Nm_per_rad damping_Nms_per_rad armature_kgm2 "
-    "mass_kg com_m inertia_diag_kgm2"
+    "controller_limits_deg mass_kg com_m inertia_diag_kgm2"
 ).split()
 
 
 def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription:
     missing = [f for f in _FIELDS if f not in table]
     if missing:
-        raise ScenarioError(f"{source}: joints[{index}] lacks {', '.join(missing)}")
+        raise DescriptionError(f"{source}: joints[{index}] lacks {', '.join(missing)}")
     sign = float(table["controller_sign"])
     if sign not in (1.0, -1.0):
-        raise ScenarioError(f"{source}: joints[{index}].controller_sign must be 1 or -1, got {sign}")
+        raise DescriptionError(f"{source}: joints[{index}].controller_sign must be 1 or -1, got {sign}")
     offset = np.radians(table["controller_offset_deg"])
     lim = np.radians(table["controller_limits_deg"])
     dh_lim = sorted(sign * lim + offset)
@@ -157,20 +155,32 @@ def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription
         controller_offset=float(offset),
         lower=float(dh_lim[0]),
         upper=float(dh_lim[1]),
-        stiffness_true=float(table["stiffness_true_Nm_per_rad"]),
-        damping=float(table["damping_Nms_per_rad"]),
-        armature=float(table["armature_kgm2"]),
         mass=float(table["mass_kg"]),
         com=tuple(float(x) for x in table["com_m"]),
         inertia_diag=tuple(float(x) for x in table["inertia_diag_kgm2"]),
     )
 
 
-def load_robot(name: str = "kuka_kr60_3") -> RobotDescription:
-    """Load ``models/<name>/robot.toml``; unknown names list the available robots."""
+DEFAULT_ROBOT = "kuka_kr60_3"
+
+
+@cache
+def load_robot(name: str = DEFAULT_ROBOT) -> RobotDescription:
+    """Load ``models/<name>/robot.toml`` once per process (the description is frozen).
+
+    Unknown names list the available robots.
+    """
     source = robot_dir(name) / "robot.toml"
-    data = tomllib.loads(source.read_text())
-    joints = tuple(_joint_from_table(t, i, source) for i, t in enumerate(data.get("joints", [])))
+    data = read_toml(source, "robot description", DescriptionError)
+    tables = data.get("joints", [])
+    if not isinstance(tables, list) or not tables or not all(isinstance(t, dict) for t in tables):
+        raise DescriptionError(f"{source}: joints must be a non-empty array of tables ([[joints]])")
+    try:
+        joints = tuple(_joint_from_table(t, i, source) for i, t in enumerate(tables))
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, DescriptionError):
+            raise
+        raise DescriptionError(f"{source}: malformed joint table: {exc}") from None
     return RobotDescription(
         name=data["name"],
         display_name=data.get("display_name", data["name"]),

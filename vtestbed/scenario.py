@@ -1,31 +1,43 @@
 """Scenario files (TOML): what to simulate, validated with errors that name the field.
 
-A scenario says which robot, which test poses (DH or KUKA controller angles, in degrees),
-which wire hook, ring and tension per test, where the scanner stands and how noisy it is, how
-noisy the force sensor is, which estimator to use and the seed. See ``scenarios/*.toml``.
+A scenario says which robot, which test poses (DH or KUKA controller angles, in degrees), which
+wire hook, ring and tension per test, the lab around the robot (``[lab]``, defaults: the paper's),
+where the scanner stands and how noisy it is, how noisy the force sensor is, which estimator to
+use and the seed. A parsed :class:`Scenario` owns its robot description, its lab and its noise
+models, each built once. See ``scenarios/*.toml`` and the README's field table.
+
+Units: SI in the object (rad, m, N); degrees in the file where the key says ``_deg``.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import OutOfRangeError, ScenarioError
-from .lab import LabSetup
-from .robots import RobotDescription, load_robot
+from .errors import OutOfRangeError, ScenarioError, VtestbedError
+from .files import read_toml
+from .lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N, LabSetup, parse_lab
+from .robots import DEFAULT_ROBOT, RobotDescription, load_robot
+from .schema import Fields
+from .world.scan_noise import ScanNoise
+from .world.sensors import DEFAULT_NOISE_STD, NO_BIAS
 
 CONVENTIONS = ("dh", "controller")
 METHODS = ("ols", "wls", "fgls")
+DEFAULT_METHOD = "fgls"
+DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
+POINT_SPACING_RANGE_M = (2e-5, 5e-3)
+FT_NOISE_STD_MAX, FT_BIAS_MAX = 50.0, 100.0  # N (N*m)
 TOP_LEVEL = (
     "name",
     "description",
     "robot",
     "seed",
+    "lab",
     "poses",
     "load",
     "scanner",
@@ -47,23 +59,37 @@ class LoadPlan:
 
 @dataclass(frozen=True)
 class ScannerPlan:
-    distance: float = 0.6  # m, scanner to block
+    """Where the scanner stands and how it errs.
+
+    ``noise_params`` are the file's overrides of :class:`ScanNoise`; ``noise_model`` is the
+    model they give (None for a perfect scanner, ``noise = false``).
+    """
+
+    distance: float = DEFAULT_SCANNER_DISTANCE_M  # m, scanner to block centre
     noise: bool = True
-    noise_params: dict = field(default_factory=dict)  # overrides of the scanner noise model
-    spacing: float | None = None  # m, point spacing on the block; None: scanner default
+    noise_params: dict = field(default_factory=dict)
+    spacing: float | None = None  # m, point spacing on the block; None: the scanner's default
+    noise_model: ScanNoise | None = field(default_factory=ScanNoise)
+
+    @property
+    def placement(self) -> dict:
+        """Keyword arguments of ``Scanner.place`` that the scenario sets."""
+        return {} if self.spacing is None else {"point_spacing_m": self.spacing}
 
 
 @dataclass(frozen=True)
 class ForceSensorPlan:
-    noise_std: tuple[float, ...] = (0.0625, 0.0625, 0.0625, 0.0019, 0.0019, 0.0019)  # N, N*m
-    bias: tuple[float, ...] = (0.0,) * 6
+    """The force sensor's noise std and bias (Fx..Tz) [N, N*m]."""
+
+    noise_std: tuple[float, ...] = DEFAULT_NOISE_STD
+    bias: tuple[float, ...] = NO_BIAS
 
 
 @dataclass(frozen=True)
 class Scenario:
     name: str
     description: str
-    robot_name: str
+    robot: RobotDescription
     seed: int
     poses: np.ndarray  # (n_tests, n) DH angles [rad]
     load: LoadPlan
@@ -72,8 +98,13 @@ class Scenario:
     method: str
     validation_poses: np.ndarray  # (n_val, n) DH [rad], may be empty
     validation_load: LoadPlan
+    lab: LabSetup = field(default_factory=LabSetup)
     source: Path | None = None
     raw: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def robot_name(self) -> str:
+        return self.robot.name
 
     @property
     def n_tests(self) -> int:
@@ -85,161 +116,116 @@ class Scenario:
         text = json.dumps(self.raw, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
-    def robot(self) -> RobotDescription:
-        return load_robot(self.robot_name)
 
-
-def _err(source, field_name: str, message: str) -> ScenarioError:
-    where = f"{source}: " if source else ""
-    return ScenarioError(f"{where}{field_name}: {message}")
-
-
-def _check_keys(table: dict, allowed, source, prefix: str) -> None:
-    unknown = sorted(set(table) - set(allowed))
-    if unknown:
-        raise _err(source, f"{prefix}{unknown[0]}", f"unknown key; valid keys: {', '.join(allowed)}")
-
-
-def _number(value, source, name: str, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise _err(source, name, f"must be a number in [{low:g}, {high:g}], got {value!r}")
-    if not (low <= value <= high):
-        raise _err(source, name, f"= {value:g} is outside the valid range [{low:g}, {high:g}]")
-    return float(value)
-
-
-def _vector(value, source, name: str, length: int, low: float, high: float) -> tuple[float, ...]:
-    if not isinstance(value, list) or len(value) != length:
-        raise _err(source, name, f"must be a list of {length} numbers, got {value!r}")
-    return tuple(_number(v, source, f"{name}[{i}]", low, high) for i, v in enumerate(value))
-
-
-def _poses(table: dict, robot: RobotDescription, source, prefix: str) -> np.ndarray:
-    _check_keys(table, ("convention", "angles_deg"), source, prefix)
-    convention = table.get("convention", "dh")
-    if convention not in CONVENTIONS:
-        raise _err(source, f"{prefix}convention", f"{convention!r} is not one of {', '.join(CONVENTIONS)}")
+def _poses(table, robot: RobotDescription, f: Fields, prefix: str) -> np.ndarray:
+    f.table(table, prefix.rstrip("."), ("convention", "angles_deg"))
+    convention = f.choice(table.get("convention", "dh"), f"{prefix}convention", CONVENTIONS)
     rows = table.get("angles_deg")
     if not isinstance(rows, list) or not rows:
-        raise _err(
-            source, f"{prefix}angles_deg", "must be a non-empty list of poses (lists of angles in deg)"
-        )
+        raise f.error(f"{prefix}angles_deg", "must be a non-empty list of poses (lists of angles in deg)")
     poses = []
     for i, row in enumerate(rows):
-        angles = np.radians(_vector(row, source, f"{prefix}angles_deg[{i}]", robot.dof, -720.0, 720.0))
+        angles = np.radians(f.vector(row, f"{prefix}angles_deg[{i}]", robot.dof, -720.0, 720.0))
         q = robot.controller_to_dh(angles) if convention == "controller" else angles
         try:
             robot.check_pose(q, field=f"{prefix}angles_deg[{i}]")
-        except Exception as exc:
-            raise _err(source, f"{prefix}angles_deg[{i}]", str(exc)) from None
+        except VtestbedError as exc:
+            raise f.error(f"{prefix}angles_deg[{i}]", str(exc)) from None
         poses.append(q)
     return np.array(poses)
 
 
-def _per_test(value, count: int, source, name: str, check) -> tuple:
+def _per_test(value, count: int, f: Fields, name: str, check) -> tuple:
+    """One value per test: a single value for all, or a list whose length is 1 or ``count``."""
     values = value if isinstance(value, list) else [value]
     if not values:
-        raise _err(source, name, "must not be empty")
+        raise f.error(name, "must not be empty")
+    if len(values) not in (1, count):
+        raise f.error(name, f"has {len(values)} values for {count} tests: give one value, or one per test")
     return tuple(check(values[i % len(values)], f"{name}[{i % len(values)}]") for i in range(count))
 
 
-def _load_plan(table: dict, count: int, lab: LabSetup, source, prefix: str) -> LoadPlan:
-    _check_keys(table, ("hook", "anchor", "tension_N"), source, prefix)
-    max_force = max(lab.sensor.wrench_range[:3])
-
-    def name_check(valid):
-        def check(value, name):
-            if value not in valid:
-                raise _err(source, name, f"{value!r} is not one of {', '.join(sorted(valid))}")
-            return value
-
-        return check
-
+def _load_plan(table, count: int, lab: LabSetup, f: Fields, prefix: str) -> LoadPlan:
+    f.table(table, prefix.rstrip("."), ("hook", "anchor", "tension_N"))
+    low, high = lab.tension_range_N
     return LoadPlan(
-        hooks=_per_test(
-            table.get("hook", "hook_x"), count, source, f"{prefix}hook", name_check(lab.block.hooks)
-        ),
-        anchors=_per_test(
-            table.get("anchor", "ring_5"), count, source, f"{prefix}anchor", name_check(lab.table.anchors)
-        ),
-        tensions=_per_test(
-            table.get("tension_N", 200.0),
-            count,
-            source,
-            f"{prefix}tension_N",
-            lambda v, n: _number(v, source, n, 1.0, max_force),
-        ),
+        hooks=_per_test(table.get("hook", DEFAULT_HOOK), count, f, f"{prefix}hook",
+                        lambda v, n: f.choice(v, n, sorted(lab.block.hooks))),
+        anchors=_per_test(table.get("anchor", DEFAULT_ANCHOR), count, f, f"{prefix}anchor",
+                          lambda v, n: f.choice(v, n, sorted(lab.table.anchors))),
+        tensions=_per_test(table.get("tension_N", DEFAULT_TENSION_N), count, f, f"{prefix}tension_N",
+                           lambda v, n: f.number(v, n, low, high)),
+    )  # fmt: skip
+
+
+def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
+    f.table(table, "scanner", ("distance_m", "noise", "noise_params", "spacing_m"))
+    noise = f.boolean(table.get("noise", True), "scanner.noise")
+    params = f.table(
+        table.get("noise_params", {}), "scanner.noise_params", tuple(ScanNoise.__dataclass_fields__)
     )
+    for key, value in params.items():
+        f.number(value, f"scanner.noise_params.{key}", 0.0, 90.0)
+    try:
+        model = ScanNoise(**params)
+    except OutOfRangeError as exc:
+        raise f.error("scanner.noise_params", str(exc)) from None
+    spacing = table.get("spacing_m")
+    return ScannerPlan(
+        distance=f.number(table.get("distance_m", DEFAULT_SCANNER_DISTANCE_M), "scanner.distance_m",
+                          *lab.scanner.working_distance_m),
+        noise=noise,
+        noise_params=dict(params),
+        spacing=None if spacing is None else f.number(spacing, "scanner.spacing_m", *POINT_SPACING_RANGE_M),
+        noise_model=model if noise else None,
+    )  # fmt: skip
+
+
+def _force_sensor_plan(table, f: Fields) -> ForceSensorPlan:
+    f.table(table, "force_sensor", ("noise_std", "bias"))
+    return ForceSensorPlan(
+        noise_std=f.vector(table.get("noise_std", list(DEFAULT_NOISE_STD)), "force_sensor.noise_std", 6, 0.0,
+                           FT_NOISE_STD_MAX),
+        bias=f.vector(table.get("bias", list(NO_BIAS)), "force_sensor.bias", 6, -FT_BIAS_MAX, FT_BIAS_MAX),
+    )  # fmt: skip
 
 
 def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     """Validate a scenario mapping (as read from TOML) and build a :class:`Scenario`."""
-    _check_keys(data, TOP_LEVEL, source, "")
+    f = Fields(source)
+    f.table(data, "", TOP_LEVEL)
     for key in ("name", "poses"):
         if key not in data:
-            raise _err(source, key, "is required")
+            raise f.error(key, "is required")
+    name = f.string(data["name"], "name", allow_empty=False)
+    robot_name = data.get("robot", DEFAULT_ROBOT)
     try:
-        robot = load_robot(data.get("robot", "kuka_kr60_3"))
-    except Exception as exc:
-        raise _err(source, "robot", str(exc)) from None
-    lab = LabSetup()
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise _err(source, "seed", f"must be a non-negative integer, got {seed!r}")
-    poses = _poses(data["poses"], robot, source, "poses.")
-    load = _load_plan(data.get("load", {}), len(poses), lab, source, "load.")
-
-    sc = data.get("scanner", {})
-    _check_keys(sc, ("distance_m", "noise", "noise_params", "spacing_m"), source, "scanner.")
-    noise = sc.get("noise", True)
-    if not isinstance(noise, bool):
-        raise _err(source, "scanner.noise", f"must be true or false, got {noise!r}")
-    params = sc.get("noise_params", {})
-    if not isinstance(params, dict):
-        raise _err(source, "scanner.noise_params", "must be a table of noise-model parameters")
-    _check_noise_params(params, source)
-    scanner = ScannerPlan(
-        distance=_number(sc.get("distance_m", 0.6), source, "scanner.distance_m", 0.1, 1.25),
-        noise=noise,
-        noise_params=dict(params),
-        spacing=None
-        if "spacing_m" not in sc
-        else _number(sc["spacing_m"], source, "scanner.spacing_m", 2e-5, 5e-3),
+        robot = load_robot(f.string(robot_name, "robot", allow_empty=False))
+    except VtestbedError as exc:
+        raise f.error("robot", str(exc)) from None
+    lab = parse_lab(data.get("lab", {}), f)
+    seed = f.seed(data.get("seed", 0), "seed")
+    poses = _poses(data["poses"], robot, f, "poses.")
+    load = _load_plan(data.get("load", {}), len(poses), lab, f, "load.")
+    scanner = _scanner_plan(data.get("scanner", {}), lab, f)
+    force = _force_sensor_plan(data.get("force_sensor", {}), f)
+    ident = f.table(data.get("identification", {}), "identification", ("method",))
+    method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
+    val = f.table(
+        data.get("validation", {}), "validation", ("convention", "angles_deg", "hook", "anchor", "tension_N")
     )
-    fs = data.get("force_sensor", {})
-    _check_keys(fs, ("noise_std", "bias"), source, "force_sensor.")
-    force = ForceSensorPlan(
-        noise_std=_vector(
-            fs.get("noise_std", list(ForceSensorPlan.noise_std)),
-            source,
-            "force_sensor.noise_std",
-            6,
-            0.0,
-            50.0,
-        ),
-        bias=_vector(fs.get("bias", [0.0] * 6), source, "force_sensor.bias", 6, -100.0, 100.0),
-    )
-    ident = data.get("identification", {})
-    _check_keys(ident, ("method",), source, "identification.")
-    method = ident.get("method", "fgls")
-    if method not in METHODS:
-        raise _err(source, "identification.method", f"{method!r} is not one of {', '.join(METHODS)}")
-    val = data.get("validation", {})
-    _check_keys(val, ("convention", "angles_deg", "hook", "anchor", "tension_N"), source, "validation.")
     if val:
-        pose_part = {k: val[k] for k in ("convention", "angles_deg") if k in val}
-        val_poses = _poses(pose_part, robot, source, "validation.")
+        val_poses = _poses(
+            {k: val[k] for k in ("convention", "angles_deg") if k in val}, robot, f, "validation."
+        )
         load_part = {k: val[k] for k in ("hook", "anchor", "tension_N") if k in val}
-        val_load = _load_plan(load_part, len(val_poses), lab, source, "validation.")
+        val_load = _load_plan(load_part, len(val_poses), lab, f, "validation.")
     else:
         val_poses, val_load = np.zeros((0, robot.dof)), LoadPlan((), (), ())
-    name = data["name"]
-    if not isinstance(name, str) or not name:
-        raise _err(source, "name", "must be a non-empty string")
     return Scenario(
         name=name,
         description=str(data.get("description", "")),
-        robot_name=robot.name,
+        robot=robot,
         seed=seed,
         poses=poses,
         load=load,
@@ -248,38 +234,20 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         method=method,
         validation_poses=val_poses,
         validation_load=val_load,
+        lab=lab,
         source=Path(source) if source else None,
         raw=data,
     )
 
 
-def _check_noise_params(params: dict, source) -> None:
-    from .world.scanner import ScanNoise
-
-    valid = tuple(ScanNoise.__dataclass_fields__)
-    _check_keys(params, valid, source, "scanner.noise_params.")
-    for key, value in params.items():
-        _number(value, source, f"scanner.noise_params.{key}", 0.0, 90.0)
-    try:
-        ScanNoise(**params)
-    except OutOfRangeError as exc:
-        raise _err(source, "scanner.noise_params", str(exc)) from None
-
-
-def read_toml(path: str | Path, what: str = "scenario") -> dict:
-    """The mapping in a TOML file, or a :class:`ScenarioError` saying what is wrong with it."""
-    path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"{what} file {path} does not exist")
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+def read_scenario_file(path: str | Path, what: str = "scenario") -> dict:
+    """The mapping in a scenario (or campaign) TOML file, or a :class:`ScenarioError` naming it."""
+    return read_toml(path, f"{what} file", ScenarioError)
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario TOML file."""
-    return parse_scenario(read_toml(path), Path(path))
+    return parse_scenario(read_scenario_file(path), Path(path))
 
 
 def scenario_summary(s: Scenario) -> dict:
@@ -289,7 +257,7 @@ def scenario_summary(s: Scenario) -> dict:
         "seed": s.seed,
         "n_tests": s.n_tests,
         "method": s.method,
-        "scanner": asdict(s.scanner),
+        "scanner": {k: v for k, v in asdict(s.scanner).items() if k != "noise_model"},
         "force_sensor": asdict(s.force_sensor),
         "fingerprint": s.fingerprint,
     }

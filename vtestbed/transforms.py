@@ -68,8 +68,20 @@ def displacement(pose_before: np.ndarray, pose_after: np.ndarray) -> np.ndarray:
     """6-D small displacement of a frame between two poses, both expressed in one fixed frame.
 
     Returns ``[p1 - p0, rotvec(R1 R0^T)]`` (m, rad), in the fixed frame: the motion of the
-    frame's own origin, not of the fixed frame's origin (see DESIGN.md, the O1 O0^-1 pitfall).
+    frame's own origin, not of the fixed frame's origin (the O1 O0^-1 pitfall, docs/architecture.md).
     """
     trans = pose_after[:3, 3] - pose_before[:3, 3]
     rot = rotation_vector(pose_after[:3, :3] @ pose_before[:3, :3].T)
     return np.concatenate([trans, rot])
+
+
+def displacement_in_block_frame(frame_unloaded: np.ndarray, frame_loaded: np.ndarray) -> np.ndarray:
+    """Small displacement of a body frame, in the unloaded frame's own axes (6,) [m, rad].
+
+    ``[R0^T (o1 - o0), rotvec(R0^T R1)]`` from two (4, 4) poses given in any one fixed frame (the
+    scanner's, or the world's): the result does not depend on which, so it needs no
+    scanner-to-robot calibration.
+    """
+    rot0 = frame_unloaded[:3, :3]
+    trans = rot0.T @ (frame_loaded[:3, 3] - frame_unloaded[:3, 3])
+    return np.concatenate([trans, rotation_vector(rot0.T @ frame_loaded[:3, :3])])

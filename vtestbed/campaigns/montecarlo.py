@@ -3,7 +3,9 @@
 The equilibrium and the ray-cast geometry of a test depend on the pose and the load only, not
 on the noise, so :func:`prepare` computes them once; :func:`trial` then draws the scanner and
 force-sensor noise for one seed and runs the researcher's own code
-(:func:`vtestbed.analysis.measure_arrays`, :func:`vtestbed.identify.identify`) on the result.
+(:func:`vtestbed.researcher.measure.measure_arrays`, :func:`vtestbed.researcher.identify.identify`)
+on the result. The researcher's kinematic model is built once per prepared scenario, never per
+trial.
 
 A trial with seed ``s`` consumes the random numbers in the same order as
 :func:`vtestbed.experiment.simulate` with ``seed = s``, so it reproduces that dataset exactly.
@@ -13,20 +15,22 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
-from ..experiment import dataset_setup, draw_readings, run_test_physics, scanner_placement, test_rng
-from ..lab import LabSetup
+from ..experiment import dataset_setup, test_id
 from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
 from ..scenario import Scenario
+from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
-from ..world.scanner import ScanGeometry, ScanNoise
+from ..world.scan_noise import ScanGeometry, ScanNoise
 from ..world.sensors import ForceTorqueSensor
+from ..world.truth import load_truth
 
 
 @dataclass(frozen=True)
@@ -47,20 +51,33 @@ class PreparedTest:
 
 @dataclass(frozen=True)
 class PreparedScenario:
+    """A scenario's tests with their physics done; trials only add noise and run the researcher."""
+
     scenario: Scenario
     setup: DatasetSetup
     tests: tuple[PreparedTest, ...]
-    stiffness_true: np.ndarray
+    stiffness_true: np.ndarray  # (n,) N*m/rad: for the reports of a campaign, never for a trial
 
     def identification_tests(self) -> list[PreparedTest]:
         return [t for t in self.tests if t.group == "identification"]
 
+    @cached_property
+    def kinematics(self) -> ArmKinematics:
+        """The researcher's Pinocchio model of the block, built on first use and then reused."""
+        return ArmKinematics(self.scenario.robot, self.setup.block_in_flange)
+
+    @cached_property
+    def sensor(self) -> ForceTorqueSensor:
+        """The scenario's force sensor (its noise and bias)."""
+        fs = self.scenario.force_sensor
+        return ForceTorqueSensor(self.scenario.lab.sensor, fs.noise_std, fs.bias)
+
 
 def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedScenario:
     """Solve every test's equilibrium and ray-cast both scans once (deterministic)."""
-    lab = LabSetup()
-    rig = Rig(scenario.robot(), lab)
-    placement = scanner_placement(scenario)
+    lab = scenario.lab
+    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name))
+    placement = scenario.scanner.placement
     jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
     if include_validation:
         jobs += [
@@ -73,7 +90,7 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
         )
         tests.append(
             PreparedTest(
-                test_id=f"{'T' if group == 'identification' else 'V'}{i + 1:03d}",
+                test_id=test_id(group, i),
                 group=group,
                 index=i,
                 q=np.asarray(q),
@@ -85,7 +102,7 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
                 displacement_true=phys.displacement_true,
             )
         )
-    return PreparedScenario(scenario, dataset_setup(scenario, lab), tuple(tests), rig.robot.stiffness_true)
+    return PreparedScenario(scenario, dataset_setup(scenario, lab), tuple(tests), rig.truth.stiffness_true)
 
 
 def measure_trial(
@@ -99,12 +116,10 @@ def measure_trial(
 
     ``noise="scenario"`` uses the scenario's scanner noise; ``None`` is a perfect scanner.
     """
-    sc = prepared.scenario
     if isinstance(noise, str):
-        noise = ScanNoise(**sc.scanner.noise_params) if sc.scanner.noise else None
-    lab = LabSetup()
-    sensor = sensor or ForceTorqueSensor(lab.sensor, sc.force_sensor.noise_std, sc.force_sensor.bias)
-    kin = ArmKinematics(sc.robot(), prepared.setup.block_in_flange)
+        noise = prepared.scenario.scanner.noise_model
+    sensor = sensor or prepared.sensor
+    kin = prepared.kinematics
     out = []
     for t in tests if tests is not None else prepared.identification_tests():
         rng = test_rng(seed, t.group, t.index)
@@ -130,5 +145,5 @@ def trial(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(
-            measurements, method or prepared.scenario.method, prepared.scenario.robot().joint_names
+            measurements, method or prepared.scenario.method, prepared.scenario.robot.joint_names
         )

@@ -23,7 +23,7 @@ the sensor stays in range) and the truth-world check below is used. A pose with 
 dropped, so the n tests of a nested set are the first n feasible poses of one seeded stream:
 more tests extend the list without changing its start.
 
-Truth-world check (:class:`FeasibilityChecker`): exactly what :func:`vtestbed.montecarlo.prepare`
+Truth-world check (:class:`FeasibilityChecker`): exactly what :func:`vtestbed.campaigns.montecarlo.prepare`
 does (command, hook, solve, place the scanner, cast, tighten, cast); a test that raises any
 :class:`~vtestbed.errors.VtestbedError` (scanner sees fewer than three faces, sensor overload,
 no convergence) is dropped deterministically.
@@ -41,12 +41,14 @@ import numpy as np
 from ..design import criterion as poses
 from ..design import optimal as design
 from ..design import regions
+from ..design.priors import stiffness_prior
 from ..errors import VtestbedError
-from ..experiment import run_test_physics, scanner_placement
 from ..lab import LabSetup
 from ..researcher.kinematics import ArmKinematics
 from ..scenario import LoadPlan, Scenario
+from ..world.physics import run_test_physics
 from ..world.rig import Rig
+from ..world.truth import load_truth
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,10 +101,10 @@ class FeasibilityChecker:
     """Tries a test in the truth world as :func:`vtestbed.montecarlo.prepare` would (cached)."""
 
     def __init__(self, scenario: Scenario, lab: LabSetup | None = None):
-        self.lab = lab or LabSetup()
-        self.rig = Rig(scenario.robot(), self.lab)
+        self.lab = lab or scenario.lab
+        self.rig = Rig(scenario.robot, self.lab, truth=load_truth(scenario.robot_name))
         self.distance = scenario.scanner.distance
-        self.placement = scanner_placement(scenario)
+        self.placement = scenario.scanner.placement
         self.cache: dict = {}
         self.tried = 0
 
@@ -227,8 +229,8 @@ def design_plan(robot, pool_q: np.ndarray, n: int, options, checker, stiffness_p
 def build_plans(campaign, keys, progress=None) -> dict[str, TestPlan]:
     """The test list of each plan key (``"pose_set:n"``, see :meth:`Campaign.plan_key`)."""
     sc = campaign.scenario
-    robot, opts = sc.robot(), campaign.pose_sets
-    prior = np.array(design.PAPER_STIFFNESS_NMM) / 1e3  # D-optimality does not depend on it
+    robot, opts = sc.robot, campaign.pose_sets
+    prior = plan_prior(campaign)  # D-optimality does not depend on it
     checker, kin, pools, out = None, None, {}, {}
     for key in sorted(set(keys)):
         name, n = key.split(":")[0], int(key.split(":")[1])
@@ -239,7 +241,7 @@ def build_plans(campaign, keys, progress=None) -> dict[str, TestPlan]:
             out[key] = plan
             continue
         if checker is None:
-            checker, kin = FeasibilityChecker(sc), ArmKinematics(robot, LabSetup().block_in_flange)
+            checker, kin = FeasibilityChecker(sc), ArmKinematics(robot, sc.lab.block_in_flange)
         pool_name = opts.design_pool if name == "design_optimal" else name
         if pool_name == "kappa_regions" and "kappa_regions" not in pools:
             pools["kappa_regions"] = kappa_pool(robot, opts, campaign.pose_set_rng("kappa_regions")).q
@@ -257,18 +259,24 @@ def build_plans(campaign, keys, progress=None) -> dict[str, TestPlan]:
     return out
 
 
-def plan_quality(robot, plan: TestPlan, n: int, lab: LabSetup | None = None) -> dict:
+def plan_prior(campaign) -> np.ndarray:
+    """(n,) the campaign's stiffness prior [N*m/rad] (``campaign.pose_sets.stiffness_prior``)."""
+    value = campaign.pose_sets.stiffness_prior
+    return stiffness_prior(value, campaign.scenario.robot.dof, "campaign.pose_sets.stiffness_prior")
+
+
+def plan_quality(robot, plan: TestPlan, n: int, lab: LabSetup, prior: np.ndarray) -> dict:
     """Design figures of the first ``n`` tests: mean/min criterion at the wrist centre, log det M_rel.
 
-    Nominal geometry only (no truth): :func:`vtestbed.design.evaluate` with the paper's prior.
+    Nominal geometry only (no truth): :func:`vtestbed.design.optimal.evaluate` with ``prior``
+    [N*m/rad] (the D value does not depend on it).
     """
-    lab = lab or LabSetup()
     head = plan.head(n)
     inv_kappa = poses.inv_kappa_batch(robot, head.q, "wrist")
     a = [design.candidate_tests(robot, q[None], [h], [r], t, lab, check_sensor=False, outward=False)[0].a
          for q, h, r, t in zip(head.q, head.hooks, head.anchors, head.tensions)]  # fmt: skip
     try:
-        d_value = design.evaluate(a, np.array(design.PAPER_STIFFNESS_NMM) / 1e3).d_value
+        d_value = design.evaluate(a, prior).d_value
     except VtestbedError:
         d_value = float("-inf")
     return {"inv_kappa_mean": float(inv_kappa.mean()), "inv_kappa_min": float(inv_kappa.min()),

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..plotting import pyplot, save_figure
 from .spec import AXES
 
 BOOTSTRAP = 2000
@@ -162,14 +163,6 @@ def markdown_table(summary: pd.DataFrame) -> str:
 
 
 # ---------------------------------------------------------------------- figures
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 COLORS = {"kappa_regions": "C0", "random": "C1", "design_optimal": "C2", "scenario": "C3"}
 
@@ -177,7 +170,7 @@ COLORS = {"kappa_regions": "C0", "random": "C1", "design_optimal": "C2", "scenar
 def _panels(summary: pd.DataFrame, axis: str, fixed: dict, path: Path, xlabel: str, title: str):
     from matplotlib.ticker import NullFormatter, ScalarFormatter
 
-    plt = _pyplot()
+    plt = pyplot()
     joints = list(dict.fromkeys(summary["joint"]))
     fig, axes = plt.subplots(2, 3, figsize=(10, 5.6), sharex=True)
     sel = summary
@@ -206,14 +199,11 @@ def _panels(summary: pd.DataFrame, axis: str, fixed: dict, path: Path, xlabel: s
         f"{title}\nsolid: median |k/k_true - 1| over the trials,  dashed: spread (std of k/k_true)",
         fontsize=9,
     )
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80, rect=(0, 0.06, 1, 1))
 
 
 def plot_spread(summary: pd.DataFrame, path: Path, factor: float = 1.5) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 4.6))
     ns = sorted(summary["n_tests"].unique())
     cmap = plt.get_cmap("viridis")
@@ -228,14 +218,11 @@ def plot_spread(summary: pd.DataFrame, path: Path, factor: float = 1.5) -> Path:
     ax.set_title("one point per (cell, joint)", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80)
 
 
 def plot_pose_choice(choice: pd.DataFrame, path: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for p, g in choice.groupby("pose_set"):
         g = g.sort_values("n_tests")
@@ -248,10 +235,7 @@ def plot_pose_choice(choice: pd.DataFrame, path: Path) -> Path:
     ax.set_title("pose choice: > 1 means the kappa-based choice is better", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80)
 
 
 def write_report(df: pd.DataFrame, out: str | Path, manifest: dict | None = None) -> dict:

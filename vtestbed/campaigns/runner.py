@@ -4,13 +4,13 @@
 ``DIR/campaign.json``), splits the missing trials into batches of one cell and runs them:
 in this process (``workers=1``), on ``workers`` local processes (``spawn`` context), or on a
 Dask cluster (``scheduler`` = address or :class:`distributed.Client`). Every finished batch is
-written at once as ``DIR/trials/part-*.parquet`` (temporary file + ``os.replace``), one row per
+written at once as ``DIR/trials/part-*.parquet`` (:mod:`vtestbed.campaigns.store`), one row per
 trial with its parameters, seed, estimates, predicted std and errors. An interrupted campaign
 (Ctrl-C, a killed process) keeps every finished batch; a rerun with the same campaign skips the
 trials already on disk (rows are keyed by ``trial_key`` and deduplicated on reading).
 
 Speed: a worker prepares the physics of a test list once (equilibria and ray casts,
-:func:`vtestbed.montecarlo.prepare`) and keeps it in a small cache keyed by the test list, so
+:func:`vtestbed.campaigns.montecarlo.prepare`) and keeps it in a small cache keyed by the test list, so
 every cell on that list (any noise level, test count or estimator) reuses it; each trial draws
 its own noise and runs the full researcher pipeline (cloud fits, identification).
 """
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import json
 import math
 import multiprocessing
 import os
@@ -36,24 +35,27 @@ import numpy as np
 import pandas as pd
 
 from ..errors import VtestbedError
-from ..lab import LabSetup
 from ..scenario import Scenario
-from ..world.scanner import ScanNoise
+from ..world.scan_noise import ScanNoise
 from ..world.sensors import ForceTorqueSensor
 from . import montecarlo
-from .posesets import TestPlan, build_plans, plan_quality
-from .spec import AXES, Campaign, Cell, load_campaign
+from .posesets import TestPlan
+from .spec import Campaign, Cell, load_campaign
+from .store import (
+    TRIALS_DIR,
+    SweepError,
+    open_manifest,
+    plans_on_disk,
+    read_results,
+    remove_stale_parts,
+    results,
+    write_part,
+)
 
-MANIFEST = "campaign.json"
-TRIALS_DIR = "trials"
 CACHE_SIZE = 2  # prepared test lists kept per worker process
 SECONDS_PER_TEST = 0.065  # one test of one trial (two noisy clouds, two fits), for batch sizing
 TARGET_BATCH_S = 2.0
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
-
-
-class SweepError(VtestbedError, ValueError):
-    """A results folder that belongs to another campaign, or a failed execution setting."""
 
 
 @dataclass(frozen=True)
@@ -183,8 +185,10 @@ def _row(
 def run_batch(batch: Batch) -> BatchResult:
     """Run the trials of one batch (in a worker): prepared physics from the cache, noise per trial."""
     prepared, prep_s = _prepared(batch)
-    names = batch.scenario.robot().joint_names
-    sensor = ForceTorqueSensor(LabSetup().sensor, batch.ft_noise_std, batch.scenario.force_sensor.bias)
+    names = batch.scenario.robot.joint_names
+    sensor = ForceTorqueSensor(
+        batch.scenario.lab.sensor, batch.ft_noise_std, batch.scenario.force_sensor.bias
+    )
     t0 = time.perf_counter()
     rows = []
     for trial, seed in zip(batch.trials, batch.seeds):
@@ -198,80 +202,6 @@ def run_batch(batch: Batch) -> BatchResult:
                 _row(batch, trial, seed, prepared.stiffness_true, names, error=f"{type(exc).__name__}: {exc}")
             )
     return BatchResult(rows, prep_s, time.perf_counter() - t0, os.getpid())
-
-
-# ---------------------------------------------------------------------- results on disk
-def _write_atomic(path: Path, write) -> None:
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def read_results(out: str | Path) -> pd.DataFrame:
-    """Every trial in ``out/trials`` (one row per trial key; duplicates dropped)."""
-    parts = sorted((Path(out) / TRIALS_DIR).glob("part-*.parquet"))
-    if not parts:
-        return pd.DataFrame(columns=["trial_key"])
-    df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
-    df = df.sort_values("trial_key", kind="stable").drop_duplicates("trial_key", keep="first")
-    return df.sort_values([*AXES, "trial"], kind="stable").reset_index(drop=True)
-
-
-def code_fingerprint() -> str:
-    """Hash of the source that shapes a trial's numbers (package modules but the CLI and reports,
-    and the robot model files): results of different code are not mixed in one folder."""
-    from ..robots import MODELS_DIR
-
-    package = Path(__file__).resolve().parent
-    skip = ("cli", "report", "sweep_report")
-    files = [p for p in sorted(package.glob("*.py")) if not p.stem.startswith(skip)]
-    files += sorted(MODELS_DIR.glob("*/robot.toml"))
-    h = hashlib.sha256()
-    for p in files:
-        h.update(p.name.encode() + b"\0" + p.read_bytes())
-    return h.hexdigest()[:16]
-
-
-def _open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dict:
-    path = out / MANIFEST
-    code = code_fingerprint()
-    if path.exists():
-        manifest = json.loads(path.read_text())
-        if manifest.get("fingerprint") != campaign.fingerprint:
-            raise SweepError(
-                f"{out} holds results of another campaign (fingerprint {manifest.get('fingerprint')} != "
-                f"{campaign.fingerprint}: base scenario, seed, pairing or pose-set options differ); "
-                "choose a new --out folder"
-            )
-        if manifest.get("code_fingerprint") != code and not allow_code_change:
-            raise SweepError(
-                f"{out} holds results of other vtestbed code (code fingerprint {manifest.get('code_fingerprint')} "
-                f"!= {code}: the pipeline's source or the robot model changed since); choose a new --out "
-                "folder, or allow_code_change=True (--allow-code-change) to mix them knowingly"
-            )
-        return manifest
-    robot = campaign.scenario.robot()
-    return {"format": 1, "fingerprint": campaign.fingerprint, "code_fingerprint": code, "scenario": campaign.scenario.name,
-            "joint_names": list(robot.joint_names), "stiffness_true_Nm_per_rad": robot.stiffness_true.tolist(),
-            "campaign": campaign.to_dict(), "plans": {}, "plan_quality": {}}  # fmt: skip
-
-
-def _plans(out: Path, campaign: Campaign, manifest: dict, log) -> dict[str, TestPlan]:
-    keys = {campaign.plan_key(c) for c in campaign.cells()}
-    missing = sorted(keys - set(manifest["plans"]))
-    if missing:
-        for key, plan in build_plans(campaign, missing, progress=log).items():
-            manifest["plans"][key] = plan.to_dict()
-    plans = {k: TestPlan.from_dict(manifest["plans"][k]) for k in keys}
-    robot = campaign.scenario.robot()
-    for c in campaign.cells():
-        qkey = f"{c.pose_set}:{c.n_tests}"
-        if qkey not in manifest["plan_quality"]:
-            manifest["plan_quality"][qkey] = plan_quality(robot, plans[campaign.plan_key(c)], c.n_tests)
-    manifest["campaign"] = campaign.to_dict()
-    out.mkdir(parents=True, exist_ok=True)
-    _write_atomic(out / MANIFEST, lambda p: p.write_text(json.dumps(manifest, indent=1)))
-    return plans
 
 
 def _batches(campaign: Campaign, plans, done: set, workers: int, batch_trials: int | None) -> list[Batch]:
@@ -386,14 +316,13 @@ def sweep(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SweepError(f"workers = {workers!r} must be an integer >= 1")
     out = Path(out)
-    manifest = _open_manifest(out, campaign, allow_code_change)
+    manifest = open_manifest(out, campaign, allow_code_change)
     log = _logger(progress)
     t0 = time.perf_counter()
-    plans = _plans(out, campaign, manifest, log)
+    plans = plans_on_disk(out, campaign, manifest, log)
     stats.generate_s += time.perf_counter() - t0
     (out / TRIALS_DIR).mkdir(parents=True, exist_ok=True)
-    for stale in (out / TRIALS_DIR).glob(".part-*.tmp-*"):
-        stale.unlink(missing_ok=True)  # a write cut short by a killed run
+    remove_stale_parts(out)
     done = set(read_results(out)["trial_key"])
     client = None if scheduler is None else _dask_client(scheduler)
     n_workers = workers if client is None else max(1, sum(client.nthreads().values()))
@@ -411,10 +340,7 @@ def sweep(
                unit="trial", disable=not progress, dynamic_ncols=True)  # fmt: skip
     try:
         for batch, result in runner:
-            frame = pd.DataFrame(result.rows)
-            _write_atomic(
-                out / TRIALS_DIR / f"{batch.name}.parquet", lambda p, f=frame: f.to_parquet(p, index=False)
-            )
+            write_part(out, batch.name, pd.DataFrame(result.rows))
             stats.prepare_s += result.prepare_s
             stats.compute_s += result.compute_s
             stats.trials_run += len(batch.trials)
@@ -427,15 +353,6 @@ def sweep(
         bar.close()
     stats.wall_s += time.perf_counter() - t_start
     return results(out, campaign)
-
-
-def results(out: str | Path, campaign: Campaign | None = None) -> pd.DataFrame:
-    """The trials on disk; with ``campaign``, only that campaign's cells and trials."""
-    df = read_results(out)
-    if campaign is None or df.empty:
-        return df
-    keys = {f"{c.key};trial={t}" for c in campaign.cells() for t in range(campaign.trials)}
-    return df[df["trial_key"].isin(keys)].reset_index(drop=True)
 
 
 def _logger(progress: bool):

@@ -39,9 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import OutOfRangeError, ScenarioError
-from ..scenario import Scenario, parse_scenario, read_toml
-from ..world.scanner import ScanNoise
+from ..design.priors import NAMED_PRIORS, PAPER_TABLE5
+from ..errors import OutOfRangeError
+from ..lab import DEFAULT_TENSION_N
+from ..scenario import FT_NOISE_STD_MAX, Scenario, parse_scenario, read_scenario_file
+from ..schema import Fields
+from ..world.scan_noise import ScanNoise, scaled_noise
 
 POSE_SETS = ("scenario", "kappa_regions", "random", "design_optimal")
 POSE_SET_IDS = {name: i for i, name in enumerate(POSE_SETS)}
@@ -52,12 +55,8 @@ CAMPAIGN_KEYS = ("seed", "trials", "paired", "axes", "pose_sets", "description")
 DESIGN_CRITERIA = ("D", "A", "E")
 DESIGN_POOLS = ("kappa_regions", "random")
 MAX_TRIALS = 100_000
+MAX_NOISE_SCALE = 1000.0
 TRIAL_STREAM, POSE_SET_STREAM = 0, 1
-
-
-def _err(source, field_name: str, message: str) -> ScenarioError:
-    where = f"{source}: " if source else ""
-    return ScenarioError(f"{where}{field_name}: {message}")
 
 
 @dataclass(frozen=True)
@@ -69,17 +68,20 @@ class PoseSetOptions:
     lowest criterion inv_kappa of a region pose; ``min_height_m`` [m] and ``box_m``
     (xmin, ymin, zmin, xmax, ymax, zmax) [m]: where the block may be (lab constraints, also for
     ``random``); ``wrist_jitter_deg`` [deg]: spread of joints 4, 5 around the optimum;
-    ``criterion``: D, A or E for ``design_optimal``; ``design_pool``: the poses it chooses from.
+    ``criterion``: D, A or E for ``design_optimal``; ``design_pool``: the poses it chooses from;
+    ``stiffness_prior``: a prior's name (:data:`vtestbed.design.priors.NAMED_PRIORS`) or the
+    researcher's own values [N*m/rad]; the D criterion does not depend on it, A and E do.
     """
 
     pool: int = 40
-    tension_N: float = 200.0
+    tension_N: float = DEFAULT_TENSION_N
     threshold: float = 0.7
     min_height_m: float = 0.8
     box_m: tuple[float, ...] = (0.3, -1.0, 0.0, 2.3, 1.0, 2.2)
     wrist_jitter_deg: float = 30.0
     criterion: str = "D"
     design_pool: str = "kappa_regions"
+    stiffness_prior: str | tuple[float, ...] = PAPER_TABLE5.name
 
 
 @dataclass(frozen=True)
@@ -159,10 +161,8 @@ class Campaign:
 
     def scan_noise(self, cell: Cell) -> ScanNoise | None:
         """The scanner noise of a cell: range std and drifts of the base scaled by the cell's factor."""
-        sc = self.scenario.scanner
-        if not sc.noise:
-            return None
-        return scaled_noise(ScanNoise(**sc.noise_params), cell.scanner_noise_scale)
+        base = self.scenario.scanner.noise_model
+        return None if base is None else scaled_noise(base, cell.scanner_noise_scale)
 
     def ft_noise_std(self, cell: Cell) -> tuple[float, ...]:
         """(6,) F/T noise std of a cell [N, N*m]."""
@@ -184,160 +184,111 @@ class Campaign:
                 "fingerprint": self.fingerprint}  # fmt: skip
 
 
-def scaled_noise(noise: ScanNoise, scale: float) -> ScanNoise:
-    """``noise`` with its per-point range std and its drift stds multiplied by ``scale``.
-
-    Outliers and dropouts are unchanged: they are rejected by the cloud pipeline, not averaged.
-    """
-    return dataclasses.replace(
-        noise,
-        range_std_m=noise.range_std_m * scale,
-        drift_translation_std_m=noise.drift_translation_std_m * scale,
-        drift_rotation_std_rad=noise.drift_rotation_std_rad * scale,
-    )
-
-
-def _int(value, source, name: str, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise _err(source, name, f"must be an integer in [{low}, {high}], got {value!r}")
-    return value
-
-
-def _num(value, source, name: str, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
-        raise _err(source, name, f"must be a number in [{low:g}, {high:g}], got {value!r}")
-    return float(value)
-
-
-def _choice(value, source, name: str, valid) -> str:
-    if value not in valid:
-        raise _err(source, name, f"{value!r} is not one of {', '.join(valid)}")
-    return value
-
-
-def _axis_values(name: str, values, scenario: Scenario, source) -> tuple:
+def _axis_values(name: str, values, scenario: Scenario, f: Fields) -> tuple:
     field = f"campaign.axes.{name}"
     if not isinstance(values, list):
-        raise _err(source, field, f"must be a list of values, got {values!r}")
+        raise f.error(field, f"must be a list of values, got {values!r}")
     if not values:
-        raise _err(source, field, "is empty: give at least one value (or leave the axis out)")
+        raise f.error(field, "is empty: give at least one value (or leave the axis out)")
     out = []
     for i, v in enumerate(values):
-        f = f"{field}[{i}]"
+        item = f"{field}[{i}]"
         if name == "pose_set":
-            out.append(_choice(v, source, f, POSE_SETS))
+            out.append(f.choice(v, item, POSE_SETS))
         elif name == "method":
-            out.append(_choice(v, source, f, METHODS))
+            out.append(f.choice(v, item, METHODS))
         elif name == "n_tests":
-            out.append(_int(v, source, f, 2, 500))
+            out.append(f.integer(v, item, 2, 500))
         elif name == "scanner_noise_scale":
-            s = _num(v, source, f, 0.0, 1000.0)
-            if not scenario.scanner.noise:
-                raise _err(source, field, "the base scenario has scanner.noise = false: nothing to scale")
+            s = f.number(v, item, 0.0, MAX_NOISE_SCALE)
+            if scenario.scanner.noise_model is None:
+                raise f.error(field, "the base scenario has scanner.noise = false: nothing to scale")
             try:
-                scaled_noise(ScanNoise(**scenario.scanner.noise_params), s)
+                scaled_noise(scenario.scanner.noise_model, s)
             except OutOfRangeError as exc:
-                raise _err(source, f, f"scale {s:g} puts the scanner noise out of range: {exc}") from None
+                raise f.error(item, f"scale {s:g} puts the scanner noise out of range: {exc}") from None
             out.append(s)
         else:  # ft_noise_scale
-            s = _num(v, source, f, 0.0, 1000.0)
+            s = f.number(v, item, 0.0, MAX_NOISE_SCALE)
             if not any(scenario.force_sensor.noise_std):
-                raise _err(
-                    source, field, "the base scenario's force_sensor.noise_std is zero: nothing to scale"
-                )
-            if max(scenario.force_sensor.noise_std) * s > 50.0:
-                raise _err(source, f, f"scale {s:g} puts the F/T noise std above 50 N (N*m)")
+                raise f.error(field, "the base scenario's force_sensor.noise_std is zero: nothing to scale")
+            if max(scenario.force_sensor.noise_std) * s > FT_NOISE_STD_MAX:
+                raise f.error(item, f"scale {s:g} puts the F/T noise std above {FT_NOISE_STD_MAX:g} N (N*m)")
             out.append(s)
     if len(set(out)) != len(out):
         dup = next(v for v in out if out.count(v) > 1)
-        raise _err(source, field, f"value {dup!r} appears twice")
+        raise f.error(field, f"value {dup!r} appears twice")
     return tuple(out)
 
 
-def _pose_set_options(table, source) -> PoseSetOptions:
+def _pose_set_options(table, scenario: Scenario, f: Fields) -> PoseSetOptions:
     prefix = "campaign.pose_sets."
-    if not isinstance(table, dict):
-        raise _err(source, "campaign.pose_sets", "must be a table")
-    valid = tuple(f.name for f in dataclasses.fields(PoseSetOptions))
-    unknown = sorted(set(table) - set(valid))
-    if unknown:
-        raise _err(source, prefix + unknown[0], f"unknown key; valid keys: {', '.join(valid)}")
+    f.table(table, "campaign.pose_sets", tuple(fld.name for fld in dataclasses.fields(PoseSetOptions)))
     d = PoseSetOptions()
     box = table.get("box_m", list(d.box_m))
     if not isinstance(box, list) or len(box) != 6:
-        raise _err(
-            source, prefix + "box_m", f"must be 6 numbers xmin, ymin, zmin, xmax, ymax, zmax [m], got {box!r}"
+        raise f.error(
+            prefix + "box_m", f"must be 6 numbers xmin, ymin, zmin, xmax, ymax, zmax [m], got {box!r}"
         )
-    box = tuple(_num(v, source, f"{prefix}box_m[{i}]", -10.0, 10.0) for i, v in enumerate(box))
+    box = f.vector(box, prefix + "box_m", 6, -10.0, 10.0)
     if not all(box[i] < box[i + 3] for i in range(3)):
-        raise _err(
-            source, prefix + "box_m", f"the minimum must be below the maximum on every axis, got {box}"
-        )
-    threshold = _num(table.get("threshold", d.threshold), source, prefix + "threshold", 0.0, 1.0)
+        raise f.error(prefix + "box_m", f"the minimum must be below the maximum on every axis, got {box}")
+    threshold = f.number(table.get("threshold", d.threshold), prefix + "threshold", 0.0, 1.0)
     if not 0.0 < threshold < 1.0:
-        raise _err(source, prefix + "threshold", f"must be in (0, 1), got {threshold:g}")
+        raise f.error(prefix + "threshold", f"must be in (0, 1), got {threshold:g}")
+    low, high = scenario.lab.tension_range_N
+    prior = table.get("stiffness_prior", d.stiffness_prior)
+    if isinstance(prior, list):
+        prior = f.vector(prior, prefix + "stiffness_prior", scenario.robot.dof, 1.0, 1e12)
+    else:
+        f.choice(prior, prefix + "stiffness_prior", tuple(NAMED_PRIORS))
     return PoseSetOptions(
-        pool=_int(table.get("pool", d.pool), source, prefix + "pool", 5, 2000),
-        tension_N=_num(table.get("tension_N", d.tension_N), source, prefix + "tension_N", 1.0, 330.0),
+        pool=f.integer(table.get("pool", d.pool), prefix + "pool", 5, 2000),
+        tension_N=f.number(table.get("tension_N", d.tension_N), prefix + "tension_N", low, high),
         threshold=threshold,
-        min_height_m=_num(
-            table.get("min_height_m", d.min_height_m), source, prefix + "min_height_m", 0.0, 3.0
-        ),
+        min_height_m=f.number(table.get("min_height_m", d.min_height_m), prefix + "min_height_m", 0.0, 3.0),
         box_m=box,
-        wrist_jitter_deg=_num(
-            table.get("wrist_jitter_deg", d.wrist_jitter_deg), source, prefix + "wrist_jitter_deg", 0.0, 180.0
-        ),
-        criterion=_choice(table.get("criterion", d.criterion), source, prefix + "criterion", DESIGN_CRITERIA),
-        design_pool=_choice(
-            table.get("design_pool", d.design_pool), source, prefix + "design_pool", DESIGN_POOLS
-        ),
-    )
+        wrist_jitter_deg=f.number(table.get("wrist_jitter_deg", d.wrist_jitter_deg), prefix + "wrist_jitter_deg",
+                                  0.0, 180.0),
+        criterion=f.choice(table.get("criterion", d.criterion), prefix + "criterion", DESIGN_CRITERIA),
+        design_pool=f.choice(table.get("design_pool", d.design_pool), prefix + "design_pool", DESIGN_POOLS),
+        stiffness_prior=prior,
+    )  # fmt: skip
 
 
 def parse_campaign(data: dict, source: Path | str | None = None) -> Campaign:
     """Validate a scenario mapping with a ``[campaign]`` table and build a :class:`Campaign`."""
     scenario = parse_scenario(data, source)
+    f = Fields(source)
     table = data.get("campaign")
     if not isinstance(table, dict):
-        raise _err(source, "campaign", "is required for a sweep: a table with trials and [campaign.axes]")
-    unknown = sorted(set(table) - set(CAMPAIGN_KEYS))
-    if unknown:
-        raise _err(source, f"campaign.{unknown[0]}", f"unknown key; valid keys: {', '.join(CAMPAIGN_KEYS)}")
+        raise f.error("campaign", "is required for a sweep: a table with trials and [campaign.axes]")
+    f.table(table, "campaign", CAMPAIGN_KEYS)
     if "trials" not in table:
-        raise _err(source, "campaign.trials", "is required (trials per cell)")
-    trials = _int(table["trials"], source, "campaign.trials", 1, MAX_TRIALS)
-    seed = table.get("seed", scenario.seed)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise _err(source, "campaign.seed", f"must be a non-negative integer, got {seed!r}")
-    paired = table.get("paired", True)
-    if not isinstance(paired, bool):
-        raise _err(source, "campaign.paired", f"must be true or false, got {paired!r}")
+        raise f.error("campaign.trials", "is required (trials per cell)")
+    trials = f.integer(table["trials"], "campaign.trials", 1, MAX_TRIALS)
+    seed = f.seed(table.get("seed", scenario.seed), "campaign.seed")
+    paired = f.boolean(table.get("paired", True), "campaign.paired")
     axes_table = table.get("axes")
     if not isinstance(axes_table, dict) or not axes_table:
-        raise _err(
-            source, "campaign.axes", f"must be a non-empty table of axes; valid axes: {', '.join(AXES)}"
-        )
+        raise f.error("campaign.axes", f"must be a non-empty table of axes; valid axes: {', '.join(AXES)}")
     unknown = sorted(set(axes_table) - set(AXES))
     if unknown:
-        raise _err(source, f"campaign.axes.{unknown[0]}", f"unknown axis; valid axes: {', '.join(AXES)}")
-    axes = tuple((a, _axis_values(a, axes_table[a], scenario, source)) for a in AXES if a in axes_table)
-    options = _pose_set_options(table.get("pose_sets", {}), source)
-    description = table.get("description", "")
-    if not isinstance(description, str):
-        raise _err(source, "campaign.description", "must be a string")
+        raise f.error(f"campaign.axes.{unknown[0]}", f"unknown axis; valid axes: {', '.join(AXES)}")
+    axes = tuple((a, _axis_values(a, axes_table[a], scenario, f)) for a in AXES if a in axes_table)
+    options = _pose_set_options(table.get("pose_sets", {}), scenario, f)
+    description = f.string(table.get("description", ""), "campaign.description")
     campaign = Campaign(scenario, seed, trials, paired, axes, options, description,
                         Path(source) if source else None)  # fmt: skip
     for cell in campaign.cells():
         if cell.pose_set == "scenario" and cell.n_tests > scenario.n_tests:
-            raise _err(
-                source,
+            raise f.error(
                 "campaign.axes.n_tests",
                 f"{cell.n_tests} tests exceed the base scenario's {scenario.n_tests} (pose_set 'scenario' "
                 "uses the scenario's own tests)",
             )
         if cell.pose_set == "kappa_regions" and cell.n_tests > options.pool:
-            raise _err(
-                source,
+            raise f.error(
                 "campaign.axes.n_tests",
                 f"{cell.n_tests} tests exceed campaign.pose_sets.pool = {options.pool} ({cell.pose_set} "
                 "draws its tests from that pool)",
@@ -347,4 +298,4 @@ def parse_campaign(data: dict, source: Path | str | None = None) -> Campaign:
 
 def load_campaign(path: str | Path) -> Campaign:
     """Read and validate a campaign (a scenario TOML file with a ``[campaign]`` table)."""
-    return parse_campaign(read_toml(path, "campaign"), Path(path))
+    return parse_campaign(read_scenario_file(path, "campaign"), Path(path))

@@ -33,15 +33,14 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_identify(args) -> int:
-    from ..dataset import read_truth
+    from ..comparison import compare, read_truth
     from ..experiment import identify_dataset
-    from ..researcher import report
 
     setup, measurements, result = identify_dataset(args.dataset, args.method, progress=not args.quiet)
     out = {"dataset": str(args.dataset), **result.as_dict()}
     truth = None if args.no_truth else read_truth(args.dataset)
     if truth is not None:
-        out["joints"] = report.compare(result, truth)
+        out["joints"] = compare(result, truth)
     if args.json:
         print(json.dumps(out, indent=1))
         return 0

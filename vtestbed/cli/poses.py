@@ -13,9 +13,12 @@ import numpy as np
 from ..design import criterion as poses
 from ..design import influence, regions
 from ..design import optimal as design
-from ..errors import OutOfRangeError
-from ..robots import load_robot
-from .robot import parse_angles_deg, parse_numbers
+from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
+from ..design.priors import NAMED_PRIORS, stiffness_prior
+from ..errors import OutOfRangeError, UnknownNameError
+from ..lab import DEFAULT_TENSION_N
+from ..robots import DEFAULT_ROBOT, load_robot
+from .args import parse_angles_deg, parse_numbers
 
 DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in front of the robot
 
@@ -43,15 +46,6 @@ def _emit(args, data: dict, filename: str | None = None) -> None:
     print(text)
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _optimum(robot, args) -> poses.Optimum:
     return poses.optimize(robot, point=_point(args.point), seed=args.seed, q6=np.radians(args.q6_deg))
 
@@ -62,93 +56,6 @@ def _constraints(args) -> regions.PoseConstraints:
         point="block", min_height=args.min_height, box_min=None if box is None else tuple(box[:3]),
         box_max=None if box is None else tuple(box[3:]),
     )  # fmt: skip
-
-
-def plot_joint_plane(pmap, found, path, marks=()) -> None:
-    """Contour of the criterion over theta_2 (x) and theta_3 (y) with the regions outlined."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 6.5))
-    g2, g3 = np.degrees(pmap.theta2), np.degrees(pmap.theta3)
-    cs = ax.contourf(g2, g3, pmap.values.T, levels=np.linspace(0, 1, 21), cmap="viridis")
-    fig.colorbar(cs, ax=ax, label=r"$\kappa(J_{AW})^{-1}$")
-    for r in found:
-        colour = "white" if r.excluded is None else "red"
-        if r.removed is not None and r.removed.any():
-            whole = (r.mask | r.removed).T.astype(float)
-            ax.contour(g2, g3, whole, levels=[0.5], colors="red", linewidths=1.0, linestyles="dashed")
-        if r.mask.any():
-            ax.contour(g2, g3, r.mask.T.astype(float), levels=[0.5], colors=colour, linewidths=1.2)
-        label = r.name if r.excluded is None else f"{r.name} (excluded)"
-        cells = r.mask if r.excluded is None or r.removed is None else r.mask | r.removed
-        where = np.degrees(r.peak)
-        if cells.any():
-            i2, i3 = np.nonzero(cells)
-            where = (g2[i2].mean(), g3[i3].mean())
-        ax.annotate(label, where, color=colour, fontsize=11, ha="center", va="center", weight="bold")
-    for name, q, style in marks:
-        q = np.atleast_2d(q)
-        ax.plot(np.degrees(q[:, 1]), np.degrees(q[:, 2]), style, label=name, ms=8, mec="k", ls="none")
-    if marks:
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(marks), fontsize=8)
-    ax.set_xlabel(r"$\theta_2$ (DH) [deg]")
-    ax.set_ylabel(r"$\theta_3$ (DH) [deg]")
-    q = np.degrees(pmap.q_fixed)
-    ax.set_title(
-        f"criterion at {pmap.point}; theta1,4,5,6 = {q[0]:.0f}, {q[3]:.0f}, {q[4]:.0f}, {q[5]:.0f} deg"
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def plot_cartesian(cmap, path, lab=None) -> None:
-    """Best criterion per (x, z) bin of the reference point, with floor and table."""
-    from ..lab import LabSetup
-
-    plt = _pyplot()
-    lab = lab or LabSetup()
-    fig, ax = plt.subplots(figsize=(7.5, 6))
-    x = (cmap.x_edges[:-1] + cmap.x_edges[1:]) / 2
-    z = (cmap.z_edges[:-1] + cmap.z_edges[1:]) / 2
-    values = np.ma.masked_invalid(cmap.values.T)
-    cs = ax.contourf(x, z, values, levels=np.linspace(0, 1, 21), cmap="viridis")
-    fig.colorbar(cs, ax=ax, label=r"best $\kappa(J_{AW})^{-1}$ reaching the bin")
-    t = lab.table
-    ax.plot(
-        [t.center[0] - t.size[0] / 2, t.center[0] + t.size[0] / 2], [t.height] * 2, "k-", lw=3, label="table"
-    )
-    ax.axhspan(min(cmap.z_edges[0], 0.0), 0.0, color="0.6", alpha=0.6, label="below the floor")
-    ax.plot([0, 0], [0, 0.815], "k--", lw=1, label="axis 1")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (base) [m]")
-    ax.set_ylabel("z (base) [m]")
-    name = "wrist centre" if cmap.point == "wrist" else cmap.point
-    ax.set_title(f"{name} position (x, z); theta1 = 0, theta6 = 45 deg")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def plot_influence(inf, path) -> None:
-    """Curves along each joint (paper Fig. 3) and shifted to a common maximum (Fig. 4)."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    for c in inf.curves:
-        label = f"joint {c.joint}: {c.curvature(inf.method):.3g} /deg$^2$"
-        axes[0].plot(np.degrees(c.angles), c.values, label=label)
-        axes[1].plot(np.degrees(c.angles - c.at), c.values, label=f"joint {c.joint}")
-    axes[0].set_xlabel("joint angle (DH) [deg]")
-    axes[1].set_xlabel("joint angle - optimum [deg]")
-    axes[1].set_xlim(-90, 90)
-    for ax in axes:
-        ax.set_ylabel(r"$\kappa(J_{AW})^{-1}$")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    axes[0].set_title(f"influence at {inf.point}; ranking {' > '.join(map(str, inf.ranking))}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def _cmd_criterion(args) -> int:
@@ -250,6 +157,17 @@ def _cmd_regions(args) -> int:
     return 0
 
 
+def _prior(text: str, dof: int) -> np.ndarray:
+    """A named prior, or ``dof`` comma-separated values in N*mm/rad (the paper's unit)."""
+    if text in NAMED_PRIORS:
+        return stiffness_prior(text, dof, "--stiffness-prior")
+    if not any(c.isdigit() for c in text):
+        raise UnknownNameError("--stiffness-prior", text, NAMED_PRIORS)
+    return stiffness_prior(
+        parse_numbers(text, "--stiffness-prior", dof, "N*mm/rad") / 1e3, dof, "--stiffness-prior"
+    )
+
+
 def _cmd_design(args) -> int:
     robot = load_robot(args.robot)
     if args.poses:
@@ -259,11 +177,12 @@ def _cmd_design(args) -> int:
     hooks = args.hooks.split(",") if args.hooks else None
     anchors = args.anchors.split(",") if args.anchors else None
     cands = design.candidate_tests(robot, q, hooks, anchors, tension=args.tension)
-    prior = parse_numbers(args.stiffness_prior_nmm, "--stiffness-prior-nmm", 6, "N*mm/rad") / 1e3
+    prior = _prior(args.stiffness_prior, robot.dof)
     sel = design.select_tests(cands, args.tests, prior, criterion=args.criterion, method=args.method,
                               sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
     data = {"candidates": len(cands), "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
-            "stiffness_prior_Nmm_per_rad": (prior * 1e3).tolist(), "selection": sel.to_dict(),
+            "stiffness_prior": args.stiffness_prior, "stiffness_prior_Nmm_per_rad": (prior * 1e3).tolist(),
+            "selection": sel.to_dict(),
             "tests": [cands[i].to_dict() for i in sel.indices]}  # fmt: skip
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -279,7 +198,7 @@ def register(sub) -> None:
     cmds = group.add_subparsers(dest="poses_command", required=True)
 
     def common(p, pose=False, out=True):
-        p.add_argument("--robot", default="kuka_kr60_3")
+        p.add_argument("--robot", default=DEFAULT_ROBOT)
         p.add_argument(
             "--point", default="wrist", help="wrist | flange | block | x,y,z offset in the flange [m]"
         )
@@ -340,12 +259,15 @@ def register(sub) -> None:
     )
     p.add_argument("--hooks", help="comma-separated hooks (default all)")
     p.add_argument("--anchors", help="comma-separated rings (default all)")
-    p.add_argument("--tension", type=float, default=200.0, help="wire tension [N] (default %(default)s)")
+    p.add_argument(
+        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension [N] (default %(default)s)"
+    )
     p.add_argument("--tests", type=int, default=10, help="tests to choose (default %(default)s)")
     p.add_argument("--criterion", choices=design.CRITERIA, default="D")
     p.add_argument("--method", choices=design.METHODS, default="exchange")
     p.add_argument("--sigma-p", type=float, default=design.SIGMA_P, help="displacement std [m]")
     p.add_argument("--sigma-r", type=float, default=design.SIGMA_R, help="rotation std [rad]")
-    p.add_argument("--stiffness-prior-nmm", default=",".join(f"{k:g}" for k in design.PAPER_STIFFNESS_NMM),
-                   help="prior stiffness [N*mm/rad] (default: paper Table 5 = this lab's truth; flattering)")  # fmt: skip
+    p.add_argument("--stiffness-prior", required=True, metavar="NAME|k1,..,k6",
+                   help=f"your stiffness guess: a named prior ({', '.join(NAMED_PRIORS)}; the paper's Table 5 is "
+                        "also this virtual lab's truth, so it flatters) or 6 values in N*mm/rad")  # fmt: skip
     p.set_defaults(func=_cmd_design)

@@ -2,63 +2,31 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
 
-from ..errors import OutOfRangeError
-from ..robots import available_robots, load_robot
+from ..lab import DEFAULT_TENSION_N
+from ..robots import DEFAULT_ROBOT, available_robots, load_robot
+from ..scenario import DEFAULT_ANCHOR, DEFAULT_HOOK
 from ..transforms import displacement
-
-DEFAULT_POSE_DEG = "0,-60,-20,30,50,45"
-
-
-def parse_numbers(text: str, field: str, count: int, unit: str) -> np.ndarray:
-    """Parse ``"a,b,c"`` into ``count`` finite numbers, with an error naming ``field``."""
-    try:
-        values = np.array([float(x) for x in text.split(",")])
-    except ValueError:
-        raise OutOfRangeError(
-            f"{field} must be {count} comma-separated numbers [{unit}], got {text!r}"
-        ) from None
-    if values.size != count or not np.all(np.isfinite(values)):
-        raise OutOfRangeError(f"{field} must be {count} finite numbers [{unit}], got {text!r}")
-    return values
-
-
-def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
-    """Parse ``"a,b,c,d,e,f"`` (degrees) into radians, with a clear error."""
-    return np.radians(parse_numbers(text, field, count, "deg"))
-
-
-def pose_from_args(robot, args) -> np.ndarray:
-    """DH pose [rad] from ``--q-deg`` (DH) or ``--controller-deg`` (KUKA A1..A6)."""
-    if getattr(args, "controller_deg", None):
-        return robot.controller_to_dh(parse_angles_deg(args.controller_deg, "--controller-deg", robot.dof))
-    return parse_angles_deg(args.q_deg, "--q-deg", robot.dof)
-
-
-def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--q-deg", default=DEFAULT_POSE_DEG, help="DH joint angles in degrees (default %(default)s)"
-    )
-    parser.add_argument(
-        "--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)"
-    )
+from .args import add_pose_arguments, pose_from_args
 
 
 def _cmd_robot(args) -> int:
+    from ..world.truth import load_truth  # the world's side of the robot: its true stiffness
+
     robot = load_robot(args.robot)
+    k_true = load_truth(robot.name).stiffness_true
     print(f"{robot.display_name} ({robot.name}), {robot.dof} joints, total mass {robot.total_mass:.0f} kg")
     print(
         f"{'joint':8}{'alpha[deg]':>11}{'a[mm]':>8}{'d[mm]':>8}{'limits DH [deg]':>20}{'k_true [N*mm/rad]':>20}"
     )
-    for j in robot.joints:
+    for j, k in zip(robot.joints, k_true):
         lim = f"[{np.degrees(j.lower):.0f}, {np.degrees(j.upper):.0f}]"
         print(
             f"{j.name:8}{np.degrees(j.alpha_prev):11.0f}{j.a_prev * 1e3:8.0f}{j.d * 1e3:8.0f}"
-            f"{lim:>20}{j.stiffness_true * 1e3:20.4e}"
+            f"{lim:>20}{k * 1e3:20.4e}"
         )
     print(f"robots available: {', '.join(available_robots())}")
     return 0
@@ -113,18 +81,20 @@ def _cmd_models(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("robot", help="summary of a robot description")
-    p.add_argument("--robot", default="kuka_kr60_3")
+    p.add_argument("--robot", default=DEFAULT_ROBOT)
     p.set_defaults(func=_cmd_robot)
 
     p = sub.add_parser("load", help="joint deflections and block displacement at a pose and a wire tension")
-    p.add_argument("--robot", default="kuka_kr60_3")
+    p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
-    p.add_argument("--tension", type=float, default=200.0, help="wire tension in N (default %(default)s)")
-    p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
-    p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
+    p.add_argument(
+        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension in N (default %(default)s)"
+    )
+    p.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
+    p.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_load)
 
     p = sub.add_parser("models", help="regenerate the committed MJCF files from the description")
-    p.add_argument("--robot", default="kuka_kr60_3")
+    p.add_argument("--robot", default=DEFAULT_ROBOT)
     p.set_defaults(func=_cmd_models)

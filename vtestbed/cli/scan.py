@@ -8,18 +8,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import add_pose_arguments, parse_numbers, pose_from_args
+from ..lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N
+from ..robots import DEFAULT_ROBOT
+from .args import add_pose_arguments, parse_numbers, pose_from_args
 
 DEFAULT_VIEW = "1,1,1"
 
 
 def _cmd_scan(args) -> int:
+    from .. import ply
     from ..researcher import cloud
     from ..researcher.kinematics import ArmKinematics
     from ..robots import load_robot
     from ..transforms import displacement, invert
     from ..world.rig import Rig
-    from ..world.scanner import Scanner, ScanNoise
+    from ..world.scan_noise import ScanNoise
+    from ..world.scanner import Scanner
 
     robot = load_robot(args.robot)
     rig = Rig(robot)
@@ -42,8 +46,8 @@ def _cmd_scan(args) -> int:
     cloud0 = scanner.scan(rig.model, rig.data, rng, noise)
     s1 = rig.tighten(args.tension)
     cloud1 = scanner.scan(rig.model, rig.data, rng, noise)
-    cloud.write_ply(out / "unloaded.ply", cloud0)
-    cloud.write_ply(out / "loaded.ply", cloud1)
+    ply.write_ply(out / "unloaded.ply", cloud0)
+    ply.write_ply(out / "loaded.ply", cloud1)
 
     # The researcher's side: nominal block pose from the kinematic model and the scanner's pose.
     kin = ArmKinematics(robot, rig.lab.block_in_flange)
@@ -109,13 +113,18 @@ def _cmd_scan(args) -> int:
 def register(sub) -> None:
     p = sub.add_parser("scan", help="scan the block unloaded and loaded; measured vs true displacement")
     p.add_argument("--out", required=True, help="output folder for the PLY clouds and scan.json")
-    p.add_argument("--robot", default="kuka_kr60_3")
+    p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
-    p.add_argument("--tension", type=float, default=200.0, help="wire tension in N (default %(default)s)")
+    p.add_argument(
+        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension in N (default %(default)s)"
+    )
     p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
     p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
     p.add_argument(
-        "--distance-mm", type=float, default=600.0, help="scanner to block centre (default %(default)s)"
+        "--distance-mm",
+        type=float,
+        default=DEFAULT_SCANNER_DISTANCE_M * 1e3,
+        help="scanner to block centre (default %(default)s)",
     )
     p.add_argument(
         "--view",

@@ -38,7 +38,8 @@ def _text_report(report: dict) -> str:
 
 def _cmd_sweep(args) -> int:
     from ..campaigns.report import write_report
-    from ..campaigns.runner import MANIFEST, sweep
+    from ..campaigns.runner import sweep
+    from ..campaigns.store import MANIFEST
 
     campaign = load_campaign(args.scenario)  # every error is raised here, before any work
     if args.dry_run:

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.optimize import differential_evolution
 
 from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
+from ..lab import PAPER_LAB
 from ..robots import RobotDescription
 
 POINTS = ("wrist", "flange", "block")
@@ -95,9 +96,7 @@ def reference_offset(point="wrist", block_in_flange: np.ndarray | None = None) -
             return np.zeros(3)
         if point == "block":
             if block_in_flange is None:
-                from ..lab import LabSetup
-
-                block_in_flange = LabSetup().block_in_flange
+                block_in_flange = PAPER_LAB.block_in_flange
             return np.asarray(block_in_flange, dtype=float)[:3, 3].copy()
         raise UnknownNameError("reference point", point, POINTS)
     offset = np.asarray(point, dtype=float)
@@ -210,7 +209,7 @@ class CriterionValue:
         }
 
 
-def _point_name(point) -> str:
+def point_name(point) -> str:
     return point if isinstance(point, str) else "offset:" + ",".join(f"{v:g}" for v in np.ravel(point))
 
 
@@ -223,7 +222,7 @@ def criterion(robot: RobotDescription, q, point="wrist", check_limits: bool = Tr
     j11, j22, p = arm_wrist_blocks(robot, q[None], point)
     a, w = inv_kappa_frobenius(j11)[0], inv_kappa_frobenius(j22)[0]
     return CriterionValue(
-        q=q.copy(), point=_point_name(point), inv_kappa=float(a * w), inv_kappa_arm=float(a),
+        q=q.copy(), point=point_name(point), inv_kappa=float(a * w), inv_kappa_arm=float(a),
         inv_kappa_wrist=float(w), det_j11=float(np.linalg.det(j11[0])),
         det_j22=float(np.linalg.det(j22[0])), position=p[0],
     )  # fmt: skip
@@ -341,7 +340,7 @@ def optimize(
     grad, curv = finite_difference(lambda v: -neg(np.clip(v, bounds[:, 0], bounds[:, 1])), x)
     at_limit = tuple(bool(min(x[k] - bounds[k, 0], bounds[k, 1] - x[k]) < 1e-6) for k in range(4))
     return Optimum(
-        q=full(x)[0], inv_kappa=float(-neg(x)), point=_point_name(point), seed=seed,
+        q=full(x)[0], inv_kappa=float(-neg(x)), point=point_name(point), seed=seed,
         nfev=n_eval, gradient=grad, curvature=curv, at_limit=at_limit,
     )  # fmt: skip
 

@@ -22,12 +22,12 @@ from ..robots import RobotDescription
 from .criterion import (
     PAPER_RANKING,
     PAPER_TABLE2_PER_DEG2,
-    _point_name,
     check_spherical_wrist,
     finite_difference,
     inv_kappa_batch,
     optimize,
     paper_optimum,
+    point_name,
 )
 
 DEG2 = np.radians(1.0) ** 2  # rad^2 per deg^2
@@ -196,7 +196,7 @@ def joint_influence(
             fit = fourier_fit(np.degrees(angles), values, order=fourier_order, fit_frequency=fit_frequency)
             fourier, rms = float(fit.second_derivative(np.degrees(q[i]))), fit.rms
         curves.append(JointCurve(joint, angles, values, float(q[i]), float(curv[0] * DEG2), fourier, rms))
-    return Influence(q=q.copy(), point=_point_name(point), method=method, curves=tuple(curves))
+    return Influence(q=q.copy(), point=point_name(point), method=method, curves=tuple(curves))
 
 
 def compare_with_paper(influence: Influence) -> dict:
@@ -241,7 +241,7 @@ def reference_point_study(
         at_paper = joint_influence(robot, paper_optimum(robot), point=point, method=method)
         rows.append(
             {
-                "point": _point_name(point),
+                "point": point_name(point),
                 "optimum_q_deg": np.degrees(opt.q).tolist(),
                 "optimum_inv_kappa": opt.inv_kappa,
                 "at_optimum": at_opt.to_dict(),

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OutOfRangeError, UnknownNameError
-from ..lab import LabSetup
+from ..lab import DEFAULT_TENSION_N, PAPER_LAB, LabSetup
 from ..researcher.identify import a_matrix
 from ..researcher.kinematics import ArmKinematics
 from ..robots import RobotDescription
@@ -37,9 +37,6 @@ SIGMA_P = 5.3e-6  # m, translational displacement std per axis
 SIGMA_R = 8.5e-6  # rad, rotational displacement std per axis
 CRITERIA = ("D", "A", "E")
 METHODS = ("greedy", "exchange")
-# Paper Table 5 [N*mm/rad]: a literature prior. In this virtual lab the world's truth was taken
-# from the same table, so a design with this prior is flattering; pass your own guess.
-PAPER_STIFFNESS_NMM = (2.1977e9, 8.9939e8, 1.1118e9, 6.4449e7, 2.5362e7, 1.9978e7)
 
 
 @dataclass(frozen=True)
@@ -102,8 +99,8 @@ def candidate_tests(
     poses,
     hooks=None,
     anchors=None,
-    tension: float = 200.0,
-    lab: LabSetup | None = None,
+    tension: float = DEFAULT_TENSION_N,
+    lab: LabSetup = PAPER_LAB,
     check_sensor: bool = True,
     outward: bool = True,
 ) -> tuple[CandidateTest, ...]:
@@ -112,11 +109,7 @@ def candidate_tests(
     Dropped: a pose outside the limits raises; a wire that would cut into the block
     (``outward``) or a wrench outside the sensor's range (``check_sensor``) is skipped.
     """
-    lab = lab or LabSetup()
-    if not 0.0 < tension <= max(lab.sensor.wrench_range[:3]):
-        raise OutOfRangeError(
-            f"tension = {tension:g} N is outside (0, {max(lab.sensor.wrench_range[:3]):g}] N"
-        )
+    tension = lab.check_tension(tension, "tension")
     hooks = list(lab.block.hooks) if hooks is None else list(hooks)
     anchors = list(lab.table.anchors) if anchors is None else list(anchors)
     kin = ArmKinematics(robot, lab.block_in_flange)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
 from ..robots import RobotDescription
-from .criterion import _point_name, arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, reference_offset
+from .criterion import arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, point_name, reference_offset
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ def cartesian_map(
     best = np.full((x_edges.size - 1, z_edges.size - 1), -np.inf)
     np.maximum.at(best, (ix, iz), v)
     best[np.isinf(best)] = np.nan
-    return CartesianMap(x_edges, z_edges, best, _point_name(point))
+    return CartesianMap(x_edges, z_edges, best, point_name(point))
 
 
 @dataclass(frozen=True)

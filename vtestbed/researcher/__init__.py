@@ -1,0 +1,48 @@
+"""The researcher's side (Pinocchio + open3d): from a measurement dataset to joint stiffness.
+
+Everything here reads a dataset (:mod:`vtestbed.dataset`: setup.json, tests.csv, PLY clouds) and
+the robot's nominal description, never the world: it does not import :mod:`vtestbed.world` or
+mujoco and never sees the truth (``tests/test_architecture.py`` enforces both), so it runs
+unchanged on a dataset recorded in a real lab.
+
+The chain: :func:`fit_block_frame` (three planes of the block in a cloud) ->
+:func:`measure_test` (displacement, wrench and Jacobian of one test, block frame) ->
+:func:`identify` (``delta_d = A c`` by least squares, with an honest covariance) ->
+:func:`convergence` / :func:`validation` (the paper's Figures 10 and 11). Units: SI.
+"""
+
+from .cloud import BlockFrame, FitParams, fit_block_frame
+from .identify import IdentificationResult, a_matrix, identify
+from .kinematics import ArmKinematics, build_pinocchio_model
+from .measure import (
+    TestMeasurement,
+    identify_measurements,
+    load_measurements,
+    measure_arrays,
+    measure_test,
+    predict_displacement,
+    wrench_at_block,
+)
+from .report import convergence, plot_convergence, plot_validation, validation
+
+__all__ = [
+    "ArmKinematics",
+    "BlockFrame",
+    "FitParams",
+    "IdentificationResult",
+    "TestMeasurement",
+    "a_matrix",
+    "build_pinocchio_model",
+    "convergence",
+    "fit_block_frame",
+    "identify",
+    "identify_measurements",
+    "load_measurements",
+    "measure_arrays",
+    "measure_test",
+    "plot_convergence",
+    "plot_validation",
+    "predict_displacement",
+    "validation",
+    "wrench_at_block",
+]

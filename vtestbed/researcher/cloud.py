@@ -20,16 +20,14 @@ The chain follows the paper (Sec. 4.2) and runs unchanged on a lab scan read fro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .._open3d import o3d
-from ..errors import DatasetError, OutOfRangeError, ScanError, check_range
+from ..errors import OutOfRangeError, ScanError, check_range
 from ..transforms import displacement, invert
 
 FACES = ("+x", "+y", "+z")
-_UNITS = {"m": 1.0, "mm": 1e-3}
 
 
 @dataclass(frozen=True)
@@ -331,33 +329,3 @@ def paper_displacement(frame0, frame1) -> np.ndarray:
     alpha = np.arctan2(r[1, 0] / cb, r[0, 0] / cb)
     gamma = np.arctan2(r[2, 1] / cb, r[2, 2] / cb)
     return np.concatenate([t[:3, 3], [gamma, beta, alpha]])
-
-
-# ---------------------------------------------------------------------- PLY files
-def _unit(length_unit: str) -> float:
-    if length_unit not in _UNITS:
-        raise OutOfRangeError(f"length_unit = {length_unit!r} is not one of {', '.join(_UNITS)}")
-    return _UNITS[length_unit]
-
-
-def write_ply(path, points, length_unit: str = "m", binary: bool = True) -> Path:
-    """Write (N, 3) points [m] as a PLY file (double precision) in ``length_unit`` ('m' or 'mm')."""
-    scale = _unit(length_unit)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_as_points(points) / scale))
-    path = Path(path)
-    if not o3d.io.write_point_cloud(str(path), cloud, write_ascii=not binary):
-        raise DatasetError(f"could not write the point cloud file {path}")
-    return path
-
-
-def read_ply(path, length_unit: str = "m") -> np.ndarray:
-    """(N, 3) points [m] of a PLY file whose coordinates are in ``length_unit`` ('m' or 'mm')."""
-    scale = _unit(length_unit)
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"point cloud file not found: {path}")
-    cloud = o3d.io.read_point_cloud(str(path), format="ply")
-    points = np.asarray(cloud.points) * scale
-    if len(points) == 0:
-        raise DatasetError(f"point cloud file {path} holds no points (not a PLY point cloud?)")
-    return points

@@ -21,8 +21,9 @@ import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
 from ..errors import DatasetError, ScanError, VtestbedError
+from ..ply import read_ply
 from ..robots import load_robot
-from ..transforms import invert, rotation_vector
+from ..transforms import displacement_in_block_frame, invert
 from . import cloud
 from .identify import IdentificationResult, identify
 from .kinematics import ArmKinematics
@@ -51,13 +52,6 @@ def wrench_at_block(wrench_sensor: np.ndarray, setup: DatasetSetup) -> np.ndarra
     return np.concatenate([force, torque])
 
 
-def displacement_in_block_frame(frame_unloaded: np.ndarray, frame_loaded: np.ndarray) -> np.ndarray:
-    """Small displacement of the block frame, in the unloaded block frame's axes (6,) [m, rad]."""
-    rot0 = frame_unloaded[:3, :3]
-    trans = rot0.T @ (frame_loaded[:3, 3] - frame_unloaded[:3, 3])
-    return np.concatenate([trans, rotation_vector(rot0.T @ frame_loaded[:3, :3])])
-
-
 def commanded_pose(record: TestRecord, setup: DatasetSetup, robot) -> np.ndarray:
     q = np.radians(record.q_deg)
     return robot.controller_to_dh(q) if setup.angle_convention == "controller" else q
@@ -68,7 +62,7 @@ def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) ->
     clouds = []
     for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
         try:
-            clouds.append(cloud.read_ply(path))
+            clouds.append(read_ply(path))
         except VtestbedError as exc:
             raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
     return measure_arrays(record, clouds[0], clouds[1], setup, kin)

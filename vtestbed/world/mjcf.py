@@ -1,4 +1,4 @@
-"""Build the MuJoCo truth world from a robot description and a lab setup (MjSpec).
+"""Build the MuJoCo truth world from a robot description, its truth and a lab setup (MjSpec).
 
 ``build_robot_spec`` gives the bare robot (``models/<robot>/<robot>.xml``);
 ``build_scene_spec`` adds the floor, the table and its rings, the force sensor, the target
@@ -6,8 +6,9 @@ block and the wire (``models/<robot>/scene.xml``). The committed XML files are w
 :func:`write_model_files` and a test checks that they equal the generator's output.
 
 Joint ``joint<i>`` is a hinge about the DH z axis whose qpos is the DH angle theta_i; its
-spring stiffness is the true joint stiffness and its spring reference (``qpos_spring``) is the
-commanded pose, set by :mod:`vtestbed.rig` at run time.
+spring stiffness is the true joint stiffness (:class:`~vtestbed.world.truth.RobotTruth`) and its
+spring reference (``qpos_spring``) is the commanded pose, set by :mod:`vtestbed.world.rig` at run
+time.
 
 Further physics (link compliance, a gravity compensator, ...) comes in as :class:`SceneEffect`
 objects that edit the spec; the researcher side never sees them.
@@ -21,9 +22,10 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from ..lab import LabSetup
+from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, robot_dir
 from ..transforms import quat_wxyz, rot_x
+from .truth import RobotTruth, load_truth
 
 # Names the rest of vtestbed relies on.
 FLANGE_SITE = "flange"
@@ -71,7 +73,7 @@ def _visual_geom(body, **kwargs):
     return geom
 
 
-def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription) -> mujoco.MjsBody:
+def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription, truth: RobotTruth) -> mujoco.MjsBody:
     """Add the robot chain to ``spec``; returns the last link's body."""
     base = spec.worldbody.add_body(name="base")
     _visual_geom(
@@ -93,9 +95,9 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription) -> mujoco.MjsBody:
         body.inertia = list(joint.inertia_diag)
         hinge = body.add_joint(name=joint.name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
         hinge.range = [joint.lower, joint.upper]
-        hinge.stiffness[0] = joint.stiffness_true
-        hinge.damping[0] = joint.damping
-        hinge.armature = joint.armature
+        hinge.stiffness[0] = truth.stiffness[i]
+        hinge.damping[0] = truth.damping[i]
+        hinge.armature = truth.armature[i]
         # Visual shell from this joint's origin to the next one (or a sphere at the wrist).
         nxt = robot.link_transform(i + 1, 0.0)[:3, 3] if i + 1 < robot.dof else np.zeros(3)
         rgba = [1.0, 0.45, 0.0, 1.0] if i % 2 == 0 else [0.9, 0.9, 0.9, 1.0]
@@ -114,10 +116,10 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription) -> mujoco.MjsBody:
     return parent
 
 
-def build_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
+def build_robot_spec(robot: RobotDescription, truth: RobotTruth) -> mujoco.MjSpec:
     """The bare robot: base, six links with spring joints, and the ``flange`` site."""
     spec = _new_spec(robot.name)
-    _add_robot(spec, robot)
+    _add_robot(spec, robot, truth)
     return spec
 
 
@@ -210,15 +212,14 @@ def _add_table_and_wire(spec: mujoco.MjSpec, lab: LabSetup) -> None:
 
 
 def build_scene_spec(
-    robot: RobotDescription, lab: LabSetup | None = None, effects: tuple[SceneEffect, ...] = ()
+    robot: RobotDescription, truth: RobotTruth, lab: LabSetup, effects: tuple[SceneEffect, ...] = ()
 ) -> mujoco.MjSpec:
     """The full truth world: robot, sensor, block, table, rings and wire, plus ``effects``."""
-    lab = lab or LabSetup()
     spec = _new_spec(f"{robot.name}_scene")
     spec.option.timestep = 2e-4
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # a statics rig: no contacts
-    flange = _add_robot(spec, robot)
+    flange = _add_robot(spec, robot, truth)
     _add_tool(flange, lab)
     _add_table_and_wire(spec, lab)
     for kind, suffix in (
@@ -232,9 +233,10 @@ def build_scene_spec(
 
 
 def model_files(robot: RobotDescription) -> dict[str, str]:
-    """The XML texts of ``<robot>.xml`` and ``scene.xml`` as the generator produces them."""
-    robot_xml = build_robot_spec(robot).to_xml()
-    scene_xml = build_scene_spec(robot).to_xml()
+    """The XML texts of ``<robot>.xml`` and ``scene.xml`` (default lab) as the generator produces them."""
+    truth = load_truth(robot.name)
+    robot_xml = build_robot_spec(robot, truth).to_xml()
+    scene_xml = build_scene_spec(robot, truth, PAPER_LAB).to_xml()
     return {f"{robot.name.removeprefix('kuka_')}.xml": robot_xml, "scene.xml": scene_xml}
 
 

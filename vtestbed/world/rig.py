@@ -19,11 +19,11 @@ import mujoco
 import numpy as np
 
 from ..errors import ConvergenceError, OutOfRangeError
-from ..lab import LabSetup
+from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, load_robot
 from ..transforms import homogeneous, quat_wxyz
 from . import mjcf
-from .sensors import check_wrench_range
+from .truth import RobotTruth, load_truth
 
 RESIDUAL_TOL = 1e-9  # N*m; the floor is about ulp(q) * k = 4e-11 N*m
 TENSION_TOL = 1e-6  # N
@@ -65,9 +65,11 @@ class Rig:
     Parameters
     ----------
     robot : RobotDescription, optional
-        Defaults to the KUKA KR60-3.
+        The nominal description; defaults to the KUKA KR60-3.
     lab : LabSetup, optional
         Sensor, block, table and wire; defaults follow the paper.
+    truth : RobotTruth, optional
+        True joint stiffness (and settling terms); defaults to ``models/<robot>/truth.toml``.
     effects : tuple of mjcf.SceneEffect
         Extra physics the paper's model leaves out.
     gravity : bool
@@ -80,10 +82,12 @@ class Rig:
         lab: LabSetup | None = None,
         effects: tuple = (),
         gravity: bool = True,
+        truth: RobotTruth | None = None,
     ):
         self.robot = robot or load_robot()
-        self.lab = lab or LabSetup()
-        self.model = mjcf.build_scene_spec(self.robot, self.lab, effects).compile()
+        self.lab = lab or PAPER_LAB
+        self.truth = truth or load_truth(self.robot.name)
+        self.model = mjcf.build_scene_spec(self.robot, self.truth, self.lab, effects).compile()
         if not gravity:
             self.model.opt.gravity[:] = 0.0
         self.data = mujoco.MjData(self.model)
@@ -202,14 +206,7 @@ class Rig:
         Raises :class:`OutOfRangeError` for a tension the sensor cannot measure and
         :class:`SensorOverloadError` when the resulting wrench leaves the sensor's range.
         """
-        rng = self.lab.sensor.wrench_range
-        max_force = max(rng[:3])
-        if not (0.0 < float(tension) <= max_force):
-            raise OutOfRangeError(
-                f"wire tension = {tension:g} N is outside the valid range (0, {max_force:g}] N "
-                f"(the {self.lab.sensor.name} measures at most {max_force:g} N on any axis); "
-                "use slacken_wire() for no load"
-            )
+        self.lab.check_tension(tension, "wire tension")  # use slacken_wire() for no load
         self.slacken_wire()
         free = self.solve()
         ea = self.lab.wire.axial_rigidity
@@ -244,7 +241,7 @@ class Rig:
             f"sensor wrench at wire tension {state.wire_tension:.1f} N "
             f"(hook {self.hook_name}, anchor {self.anchor_name})"
         )
-        check_wrench_range(state.sensor_wrench, self.lab.sensor, context)
+        self.lab.sensor.check(state.sensor_wrench, context)
 
     def settle(self, duration: float = 3.0, q_start=None) -> RigState:
         """Damped dynamic settle with mj_step from ``q_start`` (default: the commanded pose).

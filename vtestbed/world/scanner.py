@@ -25,25 +25,13 @@ import mujoco
 import numpy as np
 
 from ..errors import OutOfRangeError, ScanError, check_range
-from ..lab import LabSetup
-from ..transforms import homogeneous, matrix_from_rotation_vector
+from ..lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, ScannerSpec
+from ..transforms import homogeneous
 from .mjcf import SCANNABLE_GROUP
+from .scan_noise import ScanGeometry, ScanNoise
 
 BLOCK_GEOM = "target_block"
 FACE_LABELS = ("+x", "-x", "+y", "-y", "+z", "-z")
-
-
-@dataclass(frozen=True)
-class ScannerSpec:
-    """Datasheet of the scanner (paper Table 3, TECHLEGO VTOP 200B), SI units."""
-
-    name: str = "TECHLEGO VTOP 200B"
-    working_distance_m: tuple[float, float] = (0.100, 1.250)
-    area_min_m: tuple[float, float] = (0.050, 0.038)  # smallest measuring area (width, height)
-    area_max_m: tuple[float, float] = (0.450, 0.342)  # largest measuring area
-    point_spacing_m: tuple[float, float] = (0.02e-3, 0.5e-3)
-    resolution_px: tuple[int, int] = (2592, 1944)  # "5 million pixels, monochrome"
-    accuracy_m: tuple[float, float] = (0.010e-3, 0.015e-3)  # the default noise model's source
 
 
 def _check_pose(pose, name: str) -> np.ndarray:
@@ -56,127 +44,6 @@ def _check_pose(pose, name: str) -> np.ndarray:
     pose[3] = (0.0, 0.0, 0.0, 1.0)
     pose.flags.writeable = False
     return pose
-
-
-@dataclass(frozen=True, eq=False)
-class ScanGeometry:
-    """Noise-free hits of one scan, in the scanner frame (the deterministic half of a scan)."""
-
-    points_m: np.ndarray  # (N, 3) hit points [m]
-    directions: np.ndarray  # (N, 3) unit ray directions
-    normals: np.ndarray  # (N, 3) outward unit surface normals at the hits
-    geom_ids: np.ndarray  # (N,) MuJoCo geom of each hit (truth-side information, not in a lab scan)
-    ray_index: np.ndarray  # (N,) row of Scanner.ray_directions of each hit
-
-    def __len__(self) -> int:
-        return len(self.points_m)
-
-    @property
-    def cos_incidence(self) -> np.ndarray:
-        """(N,) cosine of the angle between each ray and the surface normal."""
-        return np.clip(-np.einsum("ij,ij->i", self.directions, self.normals), 0.0, 1.0)
-
-    def take(self, selection) -> ScanGeometry:
-        """The hits selected by a boolean mask or index array."""
-        return ScanGeometry(
-            *(
-                a[selection]
-                for a in (self.points_m, self.directions, self.normals, self.geom_ids, self.ray_index)
-            )
-        )
-
-
-@dataclass(frozen=True, eq=False)
-class NoisyScan:
-    """A noisy scan: the points, which hits they come from, and the drift drawn for it."""
-
-    points_m: np.ndarray  # (M, 3) m, scanner frame as the (drifted) scanner reports it
-    hit_index: np.ndarray  # (M,) row of the ScanGeometry each point comes from (dropouts removed)
-    outlier: np.ndarray  # (M,) bool, the point is an outlier
-    drift: np.ndarray  # (4, 4) D: reported point = D @ true point
-
-
-@dataclass(frozen=True)
-class ScanNoise:
-    """Measurement errors of the structured-light scanner. Defaults: VTOP 200B datasheet + assumptions.
-
-    Parameters
-    ----------
-    range_std_m : float
-        Standard deviation [m] of the per-point error along the ray at normal incidence. Default
-        0.010 mm: the datasheet's "scanning accuracy 0.010-0.015 mm" (paper Table 3).
-    grazing_exponent : float
-        The along-ray std grows as ``range_std_m / cos(theta)**grazing_exponent`` with the incidence
-        angle theta (the projected fringes widen on an inclined surface); the error normal to the
-        surface is then ``range_std_m * cos(theta)**(1 - grazing_exponent)``. Default 1.5 (an
-        assumption): 0.013 mm normal to a face seen at 55 deg, inside the datasheet's range.
-    dropout_start_deg, dropout_full_deg : float
-        Incidence angles [deg] between which the probability of losing a point rises linearly from 0
-        to 1 (steep faces return too little light). Defaults 70 and 85 deg (assumption).
-    outlier_fraction : float
-        Fraction of points replaced by outliers (phase-unwrapping errors, multipath): moved along
-        their ray by a uniform offset in ``[-outlier_range_m, outlier_range_m]``. Default 0.1 %.
-    outlier_range_m : float
-        Default 5 mm.
-    drift_translation_std_m, drift_rotation_std_rad : float
-        Standard deviation per axis of a rigid drift of the scanner frame drawn once per scan
-        (thermal drift, tripod settling). It moves every point of a scan alike, so it does not
-        average out over points. Defaults 3 um and 5 urad (assumptions: the datasheet gives none).
-    """
-
-    range_std_m: float = 0.010e-3
-    grazing_exponent: float = 1.5
-    dropout_start_deg: float = 70.0
-    dropout_full_deg: float = 85.0
-    outlier_fraction: float = 0.001
-    outlier_range_m: float = 5e-3
-    drift_translation_std_m: float = 3e-6
-    drift_rotation_std_rad: float = 5e-6
-
-    def __post_init__(self):
-        check_range("range_std_m", self.range_std_m, 0.0, 1e-3, "m")
-        check_range("grazing_exponent", self.grazing_exponent, 0.0, 4.0)
-        check_range("dropout_start_deg", self.dropout_start_deg, 0.0, 90.0, "deg")
-        check_range("dropout_full_deg", self.dropout_full_deg, self.dropout_start_deg, 90.0, "deg")
-        check_range("outlier_fraction", self.outlier_fraction, 0.0, 0.5)
-        check_range("outlier_range_m", self.outlier_range_m, 0.0, 0.1, "m")
-        check_range("drift_translation_std_m", self.drift_translation_std_m, 0.0, 1e-3, "m")
-        check_range("drift_rotation_std_rad", self.drift_rotation_std_rad, 0.0, 1e-2, "rad")
-
-    @classmethod
-    def perfect(cls) -> ScanNoise:
-        """A scanner without any error (no noise, dropout, outlier or drift)."""
-        return cls(0.0, 0.0, 90.0, 90.0, 0.0, 0.0, 0.0, 0.0)
-
-    def along_ray_std(self, cos_incidence: np.ndarray) -> np.ndarray:
-        """(N,) std [m] of the along-ray error at the given incidence cosines."""
-        cos_min = np.cos(np.radians(self.dropout_full_deg))
-        return self.range_std_m / np.maximum(cos_incidence, cos_min) ** self.grazing_exponent
-
-    def sample(self, hits: ScanGeometry, rng: np.random.Generator) -> NoisyScan:
-        """Draw one noisy scan of ``hits``. The draws are in a fixed order: same seed, same scan."""
-        if not isinstance(rng, np.random.Generator):
-            raise OutOfRangeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-        n = len(hits)
-        drift_rotvec = rng.standard_normal(3) * self.drift_rotation_std_rad
-        drift_trans = rng.standard_normal(3) * self.drift_translation_std_m
-        gauss, u_drop, u_out, u_off = rng.standard_normal(n), rng.random(n), rng.random(n), rng.random(n)
-        cos_i = hits.cos_incidence
-        theta = np.degrees(np.arccos(cos_i))
-        span = max(self.dropout_full_deg - self.dropout_start_deg, 1e-12)
-        p_drop = np.clip((theta - self.dropout_start_deg) / span, 0.0, 1.0)
-        offset = gauss * self.along_ray_std(cos_i)
-        outlier = u_out < self.outlier_fraction
-        offset[outlier] = (2 * u_off[outlier] - 1) * self.outlier_range_m
-        points = hits.points_m + offset[:, None] * hits.directions
-        drift = homogeneous(matrix_from_rotation_vector(drift_rotvec), drift_trans)
-        points = points @ drift[:3, :3].T + drift[:3, 3]
-        keep = np.flatnonzero(u_drop >= p_drop)
-        return NoisyScan(points[keep], keep, outlier[keep], drift)
-
-    def apply(self, hits: ScanGeometry, rng: np.random.Generator) -> np.ndarray:
-        """(M, 3) noisy points [m] of one scan of ``hits`` (see :meth:`sample`)."""
-        return self.sample(hits, rng).points_m
 
 
 @dataclass(frozen=True, eq=False)
@@ -208,7 +75,7 @@ class Scanner:
 
     pose_world: np.ndarray
     spec: ScannerSpec = field(default_factory=ScannerSpec)
-    standoff_m: float = 0.6
+    standoff_m: float = DEFAULT_SCANNER_DISTANCE_M
     area_m: tuple[float, float] = (0.450, 0.342)
     depth_m: float = 0.3
     point_spacing_m: float = 0.5e-3
@@ -312,7 +179,7 @@ class Scanner:
         cls,
         lab: LabSetup,
         block_pose_world: np.ndarray,
-        distance_m: float = 0.6,
+        distance_m: float = DEFAULT_SCANNER_DISTANCE_M,
         view_direction_block=(1.0, 1.0, 1.0),
         up_world=(0.0, 0.0, 1.0),
         roi_margin_m: float | None = 0.015,
@@ -342,7 +209,7 @@ class Scanner:
             Further :class:`Scanner` fields (``area_m``, ``depth_m``, ``point_spacing_m``, ``spec``).
         """
         block_pose_world = _check_pose(block_pose_world, "block_pose_world")
-        spec = kwargs.get("spec", ScannerSpec())
+        spec = kwargs.setdefault("spec", lab.scanner)
         distance_m = check_range("distance_m (scanner stand-off)", distance_m, *spec.working_distance_m, "m")
         view = np.asarray(view_direction_block, dtype=float)
         if view.shape != (3,) or not np.all(np.isfinite(view)) or np.linalg.norm(view) == 0:

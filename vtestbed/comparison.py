@@ -1,0 +1,89 @@
+"""Estimates against the truth: the only place outside the world that reads ``truth.json``.
+
+A simulated dataset carries the world's truth in a separate file; identification never opens it.
+After identification, these functions compare: per-joint relative errors, the paper's Table 5
+columns (error range and mean over the estimates from ``PAPER_FIRST_N`` tests on) and the table
+itself. A lab's dataset has no truth file: :func:`read_truth` then returns None and the reports
+skip the comparison. Stiffness in N*m/rad inside, N*mm/rad in the printed table.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import TRUTH_FILE
+from .errors import DatasetError
+from .files import read_json
+from .researcher.identify import IdentificationResult
+from .researcher.report import PAPER_FIRST_N
+
+__all__ = ["PAPER_FIRST_N", "compare", "error_ranges", "read_truth", "table5", "true_stiffness"]
+
+
+def read_truth(root: str | Path) -> dict | None:
+    """The truth file of a simulated dataset folder, or None when there is none (lab data)."""
+    path = Path(root) / TRUTH_FILE
+    if not path.exists():
+        return None
+    return read_json(path, "truth file", DatasetError)
+
+
+def true_stiffness(truth: dict, dof: int, source: str | Path = TRUTH_FILE) -> np.ndarray:
+    """(dof,) true joint stiffness [N*m/rad] from a truth mapping, or a DatasetError naming the field."""
+    values = truth.get("stiffness_true_Nm_per_rad")
+    try:
+        k = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        k = np.array([])
+    if k.shape != (dof,) or not np.all(np.isfinite(k)) or not np.all(k > 0):
+        raise DatasetError(
+            f"{source}: stiffness_true_Nm_per_rad must be {dof} positive numbers, got {values!r}"
+        )
+    return k
+
+
+def compare(result: IdentificationResult, truth: dict) -> list[dict]:
+    """Per joint: name, k_true, k_est, k_std [N*m/rad] and rel_err = k_est/k_true - 1."""
+    k_true = true_stiffness(truth, len(result.joint_names))
+    return [
+        {
+            "name": name,
+            "k_true": float(kt),
+            "k_est": float(ke),
+            "k_std": float(ks),
+            "rel_err": float(ke / kt - 1.0),
+        }
+        for name, kt, ke, ks in zip(result.joint_names, k_true, result.stiffness, result.stiffness_std)
+    ]
+
+
+def error_ranges(conv: dict, k_true: np.ndarray, first_n: int = PAPER_FIRST_N) -> dict:
+    """Paper Table 5 columns: relative error range and mean over the estimates with n >= first_n."""
+    n = np.asarray(conv["n"])
+    est = np.asarray(conv["stiffness"])[n >= first_n]
+    if len(est) == 0:
+        est = np.asarray(conv["stiffness"])[-1:]
+    rel = est / k_true - 1.0
+    return {
+        "min": rel.min(axis=0).tolist(),
+        "max": rel.max(axis=0).tolist(),
+        "mean": rel.mean(axis=0).tolist(),
+    }
+
+
+def table5(joints: list[dict], ranges: dict, first_n: int = PAPER_FIRST_N, n_tests: int | None = None) -> str:
+    """The paper's Table 5 layout, stiffness in N*mm/rad, errors in %."""
+    span = f"n={first_n}..{n_tests}" if n_tests else f"n>={first_n}"
+    lines = [
+        f"{'joint':8}{'k_true [N*mm/rad]':>19}{'k_est [N*mm/rad]':>18}{'k_std':>12}{'error [%]':>11}"
+        f"{'error range ' + span + ' [%]':>30}{'mean [%]':>10}",
+    ]
+    for i, j in enumerate(joints):
+        lo, hi, mean = ranges["min"][i] * 100, ranges["max"][i] * 100, ranges["mean"][i] * 100
+        lines.append(
+            f"{j['name']:8}{j['k_true'] * 1e3:19.4e}{j['k_est'] * 1e3:18.4e}{j['k_std'] * 1e3:12.2e}"
+            f"{j['rel_err'] * 100:11.3f}{f'{lo:.2f} ~ {hi:.2f}':>30}{mean:10.3f}"
+        )
+    return "\n".join(lines)
