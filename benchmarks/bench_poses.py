@@ -10,8 +10,7 @@ import time
 
 import numpy as np
 
-from vtestbed.design import criterion as poses
-from vtestbed.design import influence, regions
+from vtestbed.design import influence, kappa, regions
 from vtestbed.design import optimal as design
 from vtestbed.design.priors import PAPER_TABLE5  # noqa: E402
 from vtestbed.researcher.kinematics import ArmKinematics
@@ -30,14 +29,14 @@ def best_of(fn, repeats: int = 3) -> float:
 def pinocchio_criterion(kin: ArmKinematics, q: np.ndarray) -> float:
     wrist = np.linalg.inv(kin.flange_pose(q)) @ kin.joint_poses(q)[4]
     jac = kin.jacobian(q, tool_in_flange=wrist)
-    return float(poses.inv_kappa_frobenius(jac[:3, :3]) * poses.inv_kappa_frobenius(jac[3:, 3:]))
+    return float(kappa.inv_kappa_frobenius(jac[:3, :3]) * kappa.inv_kappa_frobenius(jac[3:, 3:]))
 
 
 def main() -> None:
     robot = load_robot()
     rng = np.random.default_rng(0)
     q = rng.uniform(robot.lower, robot.upper, (200_000, 6))
-    t = best_of(lambda: poses.inv_kappa_batch(robot, q))
+    t = best_of(lambda: kappa.inv_kappa_batch(robot, q))
     print(
         f"vectorised numpy criterion: {q.shape[0] / t / 1e6:6.2f} M poses/s ({t * 1e9 / q.shape[0]:.0f} ns/pose)"
     )
@@ -47,13 +46,13 @@ def main() -> None:
     print(
         f"per-pose Pinocchio criterion: {few.shape[0] / t / 1e3:6.1f} k poses/s ({t * 1e6 / few.shape[0]:.1f} us/pose)"
     )
-    t = best_of(lambda: poses.criterion(robot, q[0]), 200)
-    print(f"poses.criterion (one pose, checks included): {t * 1e6:.1f} us")
+    t = best_of(lambda: kappa.criterion(robot, q[0]), 200)
+    print(f"kappa.criterion (one pose, checks included): {t * 1e6:.1f} us")
     opt = None
 
     def run_opt():
         nonlocal opt
-        opt = poses.optimize(robot, seed=0)
+        opt = kappa.optimize(robot, seed=0)
 
     print(f"optimize (DE + polish, wrist): {best_of(run_opt) * 1e3:.0f} ms, {opt.nfev} poses")
     print(f"joint 2-3 map at 0.5 deg: {best_of(lambda: regions.joint_plane_map(robot, opt.q)) * 1e3:.0f} ms")

@@ -9,7 +9,7 @@ import pytest
 
 from vtestbed.campaigns import montecarlo, posesets
 from vtestbed.campaigns.spec import AXES, POSE_SETS, load_campaign, parse_campaign, scaled_noise
-from vtestbed.design import criterion as poses
+from vtestbed.design import kappa
 from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.errors import ScenarioError
 from vtestbed.world.scan_noise import ScanNoise
@@ -161,7 +161,7 @@ def test_generated_pose_sets_are_feasible_and_deterministic(generated):
     for name in ("kappa_regions", "random"):
         assert again[f"{name}:3"].digest == plans[f"{name}:4"].head(3).digest
     # kappa poses meet the threshold; random poses are inside the limits and the lab box
-    k = poses.inv_kappa_batch(robot, plans["kappa_regions:4"].q, "wrist")
+    k = kappa.inv_kappa_batch(robot, plans["kappa_regions:4"].q, "wrist")
     assert np.all(k >= c.pose_sets.threshold)
     q = plans["random:4"].q
     assert np.all((q >= robot.lower) & (q <= robot.upper))

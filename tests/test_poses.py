@@ -9,8 +9,7 @@ import pytest
 from scipy.optimize import brentq
 
 from vtestbed.cli.main import main
-from vtestbed.design import criterion as poses
-from vtestbed.design import influence, regions
+from vtestbed.design import influence, kappa, regions
 from vtestbed.errors import JointLimitError, UnknownNameError
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import RobotDescription
@@ -42,13 +41,13 @@ def test_vectorised_blocks_match_pinocchio(robot, lab, rng):
     kin = ArmKinematics(robot)
     q = _random_poses(robot, rng, 20)
     for point, offset in (("flange", np.eye(4)), ("block", lab.block_in_flange)):
-        j11, j22, p = poses.arm_wrist_blocks(robot, q, point)
+        j11, j22, p = kappa.arm_wrist_blocks(robot, q, point)
         for k in range(len(q)):
             jac = kin.jacobian(q[k], tool_in_flange=offset)
             np.testing.assert_allclose(j11[k], jac[:3, :3], atol=1e-13)
             np.testing.assert_allclose(j22[k], jac[3:, 3:], atol=1e-13)
             np.testing.assert_allclose(p[k], kin.tool_pose(q[k], offset)[:3, 3], atol=1e-13)
-    j11, _, _ = poses.arm_wrist_blocks(robot, q, "wrist")
+    j11, _, _ = kappa.arm_wrist_blocks(robot, q, "wrist")
     for k in range(len(q)):
         wrist_in_flange = np.linalg.inv(kin.flange_pose(q[k])) @ kin.joint_poses(q[k])[4]
         jac = kin.jacobian(q[k], tool_in_flange=wrist_in_flange)
@@ -59,14 +58,14 @@ def test_vectorised_blocks_match_pinocchio(robot, lab, rng):
 def test_adjugate_form_equals_the_inverse_form(rng):
     m = rng.normal(size=(200, 3, 3))
     direct = 3.0 / (np.linalg.norm(m, axis=(1, 2)) * np.linalg.norm(np.linalg.inv(m), axis=(1, 2)))
-    np.testing.assert_allclose(poses.inv_kappa_frobenius(m), direct, rtol=1e-11)
+    np.testing.assert_allclose(kappa.inv_kappa_frobenius(m), direct, rtol=1e-11)
     rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    assert poses.inv_kappa_frobenius(7.3 * rot) == pytest.approx(1.0, abs=1e-14)
+    assert kappa.inv_kappa_frobenius(7.3 * rot) == pytest.approx(1.0, abs=1e-14)
 
 
 def test_both_factors_match_their_closed_forms(robot, rng):
     for q in _random_poses(robot, rng, 50):
-        value = poses.criterion(robot, q)
+        value = kappa.criterion(robot, q)
         arm, wrist = _closed_form(robot, q)
         assert value.inv_kappa_arm == pytest.approx(arm, rel=1e-11)
         assert value.inv_kappa_wrist == pytest.approx(wrist, rel=1e-12)
@@ -74,7 +73,7 @@ def test_both_factors_match_their_closed_forms(robot, rng):
 
 
 def test_elbow_singularity_is_derived_from_a3_and_d4(robot):
-    stretched, folded = poses.elbow_singular_theta3(robot)
+    stretched, folded = kappa.elbow_singular_theta3(robot)
     assert np.degrees(stretched) == pytest.approx(-np.degrees(np.arctan(0.820 / 0.145)), abs=1e-12)  # -79.97
     assert np.degrees(folded) == pytest.approx(180.0 - np.degrees(np.arctan(0.820 / 0.145)), abs=1e-12)
 
@@ -93,7 +92,7 @@ def _shoulder_singular(robot, theta3, others):
 
 
 def test_criterion_is_zero_at_each_kind_of_singularity(robot, rng):
-    stretched, folded = poses.elbow_singular_theta3(robot)
+    stretched, folded = kappa.elbow_singular_theta3(robot)
     for _ in range(5):
         q = _random_poses(robot, rng, 1)[0]
         wrist, elbow, folded_q = q.copy(), q.copy(), q.copy()
@@ -101,23 +100,23 @@ def test_criterion_is_zero_at_each_kind_of_singularity(robot, rng):
         elbow[2], folded_q[2] = stretched, folded
         shoulder = _shoulder_singular(robot, rng.uniform(-150, -30) * np.pi / 180, q[[0, 3, 4, 5]])
         values = [
-            poses.criterion(robot, wrist).inv_kappa,
-            poses.criterion(robot, elbow).inv_kappa,
-            poses.criterion(robot, folded_q, check_limits=False).inv_kappa,  # beyond the joint 3 limits
-            poses.criterion(robot, shoulder).inv_kappa,
+            kappa.criterion(robot, wrist).inv_kappa,
+            kappa.criterion(robot, elbow).inv_kappa,
+            kappa.criterion(robot, folded_q, check_limits=False).inv_kappa,  # beyond the joint 3 limits
+            kappa.criterion(robot, shoulder).inv_kappa,
         ]
         assert max(values) < 1e-12, values
         for point in ("flange", "block"):  # off the wrist centre only z4 // z6 stays structural
-            assert poses.criterion(robot, wrist, point).inv_kappa < 1e-12
+            assert kappa.criterion(robot, wrist, point).inv_kappa < 1e-12
 
 
 def test_criterion_is_positive_away_from_singularities(robot, rng):
-    stretched, _ = poses.elbow_singular_theta3(robot)
+    stretched, _ = kappa.elbow_singular_theta3(robot)
     q = _random_poses(robot, rng, 20000)
-    _, _, w = poses.arm_wrist_blocks(robot, q)
+    _, _, w = kappa.arm_wrist_blocks(robot, q)
     away = (np.abs(np.sin(q[:, 4])) > 0.1) & (np.abs(np.sin(q[:, 2] - stretched)) > 0.1)
     away &= np.hypot(w[:, 0], w[:, 1]) > 0.1
-    values = poses.inv_kappa_batch(robot, q[away])
+    values = kappa.inv_kappa_batch(robot, q[away])
     assert away.sum() > 10000 and values.min() > 1e-3
 
 
@@ -131,42 +130,42 @@ def test_criterion_is_free_of_the_length_unit(robot, lab, rng):
     q = _random_poses(robot, rng, 200)
     for point_m, point_mm in (("wrist", "wrist"), ("flange", "flange"), ((0, 0.1, 0.3), (0, 100.0, 300.0))):
         np.testing.assert_allclose(
-            poses.inv_kappa_batch(in_mm, q, point_mm), poses.inv_kappa_batch(robot, q, point_m), rtol=1e-11
+            kappa.inv_kappa_batch(in_mm, q, point_mm), kappa.inv_kappa_batch(robot, q, point_m), rtol=1e-11
         )
 
 
 def test_bad_input_is_refused_with_a_clear_error(robot):
     q = np.radians([0, -30, -20, 40, 60, 45])
     with pytest.raises(JointLimitError, match=r"joint5 = 150.000 deg .*\[-119.0, 119.0\]"):
-        poses.criterion(robot, np.r_[q[:4], np.radians(150), q[5]])
+        kappa.criterion(robot, np.r_[q[:4], np.radians(150), q[5]])
     bad = robot.joints[4]
     for field, value, message in (
         ("a_prev", 0.01, r"a_4\) = 0.01 m must be 0"),
         ("d", 0.02, r"d_5\) = 0.02 m"),
     ):
         joints = robot.joints[:4] + (replace(bad, **{field: value}),) + robot.joints[5:]
-        with pytest.raises(poses.NotSphericalWristError, match=message):
-            poses.criterion(replace(robot, joints=joints), q)
-    with pytest.raises(poses.NotSphericalWristError, match="6 revolute joints, got 5"):
-        poses.optimize(replace(robot, joints=robot.joints[:5]))
+        with pytest.raises(kappa.NotSphericalWristError, match=message):
+            kappa.criterion(replace(robot, joints=joints), q)
+    with pytest.raises(kappa.NotSphericalWristError, match="6 revolute joints, got 5"):
+        kappa.optimize(replace(robot, joints=robot.joints[:5]))
     with pytest.raises(UnknownNameError, match="valid names: block, flange, wrist"):
-        poses.criterion(robot, q, point="elbow")
+        kappa.criterion(robot, q, point="elbow")
 
 
 @pytest.fixture(scope="module")
 def optimum(robot):
-    return poses.optimize(robot, seed=3)
+    return kappa.optimize(robot, seed=3)
 
 
 def test_optimum_is_reproducible_and_a_local_maximum_inside_the_limits(robot, optimum):
-    again = poses.optimize(robot, seed=3)
+    again = kappa.optimize(robot, seed=3)
     np.testing.assert_array_equal(again.q, optimum.q)
     assert np.all(optimum.q >= robot.lower) and np.all(optimum.q <= robot.upper) and not any(optimum.at_limit)
     assert np.abs(optimum.gradient).max() < 1e-4  # 1/rad
     assert optimum.curvature[[0, 1, 3]].max() < -0.3  # joints 2, 3, 5
     assert abs(optimum.curvature[2]) < 1e-8  # joint 4 cannot act at the wrist centre
     assert abs(np.degrees(optimum.q[4])) == pytest.approx(90.0, abs=1e-3)  # the closed-form wrist optimum
-    flange = poses.optimize(robot, point="flange", seed=3)
+    flange = kappa.optimize(robot, point="flange", seed=3)
     assert np.abs(flange.gradient).max() < 1e-4 and flange.curvature.max() < -0.01
 
 
@@ -176,18 +175,18 @@ def test_optimum_beats_a_brute_force_grid(robot, optimum):
     g2, g3 = np.meshgrid(t2, t3, indexing="ij")
     q = np.zeros((g2.size, 6))
     q[:, 1], q[:, 2], q[:, 4] = g2.ravel(), g3.ravel(), np.pi / 2
-    best = poses.inv_kappa_batch(robot, q).max()
+    best = kappa.inv_kappa_batch(robot, q).max()
     assert best - 1e-12 <= optimum.inv_kappa < best + 1e-4
     assert optimum.inv_kappa == pytest.approx(0.934786, abs=1e-6)
 
 
 def test_paper_pose_is_high_only_as_controller_angles_and_is_not_an_optimum(robot, optimum):
-    as_ctrl = poses.criterion(robot, poses.paper_optimum(robot, as_controller=True))
-    as_dh = poses.criterion(robot, poses.paper_optimum(robot, as_controller=False))
+    as_ctrl = kappa.criterion(robot, kappa.paper_optimum(robot, as_controller=True))
+    as_dh = kappa.criterion(robot, kappa.paper_optimum(robot, as_controller=False))
     assert as_ctrl.inv_kappa == pytest.approx(0.7837, abs=1e-4) and as_dh.inv_kappa < 0.2
-    q = poses.paper_optimum(robot)
-    grad, _ = poses.finite_difference(
-        lambda x: poses.inv_kappa_batch(robot, np.r_[q[0], x, q[5]][None])[0], q[1:5]
+    q = kappa.paper_optimum(robot)
+    grad, _ = kappa.finite_difference(
+        lambda x: kappa.inv_kappa_batch(robot, np.r_[q[0], x, q[5]][None])[0], q[1:5]
     )
     assert abs(grad[3]) > 0.1  # theta_5 = 59.4 deg is not stationary: the wrist factor peaks at 90 deg
 
@@ -195,7 +194,7 @@ def test_paper_pose_is_high_only_as_controller_angles_and_is_not_an_optimum(robo
 def test_joint5_curvature_matches_the_closed_form(robot, optimum):
     inf = influence.joint_influence(robot, optimum.q, joints=(4, 5))
     # f = arm * sqrt(3 s^2 / (s^2 + 2)); at theta_5 = 90 deg d2f/dtheta^2 = -2/3 arm per rad^2
-    expected = -2.0 / 3.0 * poses.criterion(robot, optimum.q).inv_kappa_arm * influence.DEG2
+    expected = -2.0 / 3.0 * kappa.criterion(robot, optimum.q).inv_kappa_arm * influence.DEG2
     assert inf.curvature_per_deg2[1] == pytest.approx(expected, rel=1e-4)
     assert abs(inf.curvature_per_deg2[0]) < 1e-12
 
@@ -211,9 +210,9 @@ def test_fourier_fit_recovers_a_trigonometric_polynomial():
 
 @pytest.mark.parametrize("point", ["wrist", "flange", "block"])
 def test_curvature_magnitudes_against_paper_table2(robot, point):
-    opt = poses.optimize(robot, point=point, seed=0)
+    opt = kappa.optimize(robot, point=point, seed=0)
     curv = influence.joint_influence(robot, opt.q, point=point).curvature_per_deg2
-    paper = np.abs(poses.PAPER_TABLE2_PER_DEG2)
+    paper = np.abs(kappa.PAPER_TABLE2_PER_DEG2)
     assert abs(curv[0]) / paper[0] == pytest.approx(1.1, abs=0.1)  # joint 2 agrees
     assert 1.0 < abs(curv[3]) / paper[3] < 2.0  # joint 5 within a factor 2
     assert 3.0 < abs(curv[1]) / paper[1] < 5.0  # joint 3 does not: 4x the paper's
@@ -247,7 +246,7 @@ def test_constraints_exclude_the_regions_the_paper_excludes(robot, lab, plane):
                                  wrist_jitter_deg=20, threshold=0.7) for _ in range(2)]  # fmt: skip
     np.testing.assert_array_equal(draw[0].q, draw[1].q)
     assert set(draw[0].regions) == {"Z1", "Z4"} and np.all(box.ok(robot, draw[0].q))
-    np.testing.assert_allclose(draw[0].inv_kappa, poses.inv_kappa_batch(robot, draw[0].q), rtol=1e-12)
+    np.testing.assert_allclose(draw[0].inv_kappa, kappa.inv_kappa_batch(robot, draw[0].q), rtol=1e-12)
     assert draw[0].inv_kappa.min() >= 0.7
     kin = ArmKinematics(robot, lab.block_in_flange)  # independent check of the block positions
     block = np.array([kin.tool_pose(q)[:3, 3] for q in draw[0].q])
@@ -264,7 +263,7 @@ def test_cli_criterion_and_optimize(robot, tmp_path, capsys):
     assert main(["poses", "criterion", "--q-deg", "0,-30,-20,40,60,45"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["inv_kappa"] == pytest.approx(
-        poses.criterion(robot, np.radians([0, -30, -20, 40, 60, 45])).inv_kappa
+        kappa.criterion(robot, np.radians([0, -30, -20, 40, 60, 45])).inv_kappa
     )
     assert main(["poses", "criterion", "--q-deg", "0,-30,-20,40,160,45"]) == 2
     assert "joint5 = 160.000 deg" in capsys.readouterr().err

@@ -38,9 +38,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..design import criterion as poses
+from ..design import kappa, regions
 from ..design import optimal as design
-from ..design import regions
 from ..design.priors import stiffness_prior
 from ..errors import VtestbedError
 from ..lab import LabSetup
@@ -128,7 +127,7 @@ def lab_constraints(options) -> regions.PoseConstraints:
 
 def kappa_pool(robot, options, rng: np.random.Generator) -> regions.PoseSet:
     """``options.pool`` poses from the usable regions of the joint 2-3 map (paper's selection)."""
-    opt = poses.optimize(robot, point="wrist", seed=0, q6=np.radians(45.0))
+    opt = kappa.optimize(robot, point="wrist", seed=0, q6=np.radians(45.0))
     pmap = regions.joint_plane_map(robot, opt.q, "wrist", step_deg=1.0)
     cons = lab_constraints(options)
     found = regions.restrict(regions.find_regions(pmap, threshold=options.threshold), pmap, robot, cons)
@@ -272,7 +271,7 @@ def plan_quality(robot, plan: TestPlan, n: int, lab: LabSetup, prior: np.ndarray
     [N*m/rad] (the D value does not depend on it).
     """
     head = plan.head(n)
-    inv_kappa = poses.inv_kappa_batch(robot, head.q, "wrist")
+    inv_kappa = kappa.inv_kappa_batch(robot, head.q, "wrist")
     a = [design.candidate_tests(robot, q[None], [h], [r], t, lab, check_sensor=False, outward=False)[0].a
          for q, h, r, t in zip(head.q, head.hooks, head.anchors, head.tensions)]  # fmt: skip
     try:

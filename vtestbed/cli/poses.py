@@ -10,8 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import criterion as poses
-from ..design import influence, regions
+from ..design import influence, kappa, regions
 from ..design import optimal as design
 from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
 from ..design.priors import NAMED_PRIORS, stiffness_prior
@@ -24,9 +23,9 @@ DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in
 
 
 def _point(text: str):
-    if text in poses.POINTS:
+    if text in kappa.POINTS:
         return text
-    return poses.reference_offset(parse_numbers(text, "--point", 3, "m"))
+    return kappa.reference_offset(parse_numbers(text, "--point", 3, "m"))
 
 
 def _pose(robot, args, default=None):
@@ -46,8 +45,8 @@ def _emit(args, data: dict, filename: str | None = None) -> None:
     print(text)
 
 
-def _optimum(robot, args) -> poses.Optimum:
-    return poses.optimize(robot, point=_point(args.point), seed=args.seed, q6=np.radians(args.q6_deg))
+def _optimum(robot, args) -> kappa.Optimum:
+    return kappa.optimize(robot, point=_point(args.point), seed=args.seed, q6=np.radians(args.q6_deg))
 
 
 def _constraints(args) -> regions.PoseConstraints:
@@ -63,18 +62,18 @@ def _cmd_criterion(args) -> int:
     q = _pose(robot, args)
     if q is None:
         raise OutOfRangeError("give a pose: --q-deg a,b,c,d,e,f (DH) or --controller-deg (KUKA A1..A6)")
-    value = poses.criterion(robot, q, point=_point(args.point), check_limits=not args.no_limits)
+    value = kappa.criterion(robot, q, point=_point(args.point), check_limits=not args.no_limits)
     _emit(args, value.to_dict() | {"q_controller_deg": np.degrees(robot.dh_to_controller(q)).tolist()})
     return 0
 
 
 def _paper_comparison(robot, point) -> dict:
-    out = {"paper_q_deg_as_printed": list(poses.PAPER_OPTIMUM_DEG)}
+    out = {"paper_q_deg_as_printed": list(kappa.PAPER_OPTIMUM_DEG)}
     for name, as_ctrl in (("as_controller", True), ("as_dh", False)):
-        q = poses.paper_optimum(robot, as_controller=as_ctrl)
-        value = poses.criterion(robot, q, point=point, check_limits=False)
-        f = lambda x, q=q: poses.inv_kappa_batch(robot, np.r_[q[0], x, q[5]][None], point)[0]  # noqa: E731
-        grad, curv = poses.finite_difference(f, q[1:5])
+        q = kappa.paper_optimum(robot, as_controller=as_ctrl)
+        value = kappa.criterion(robot, q, point=point, check_limits=False)
+        f = lambda x, q=q: kappa.inv_kappa_batch(robot, np.r_[q[0], x, q[5]][None], point)[0]  # noqa: E731
+        grad, curv = kappa.finite_difference(f, q[1:5])
         out[name] = {"q_dh_deg": np.degrees(q).tolist(), "inv_kappa": value.inv_kappa,
                      "gradient_per_rad": grad.tolist(), "curvature_per_deg2": (curv * influence.DEG2).tolist()}  # fmt: skip
     return out
@@ -105,7 +104,7 @@ def _cmd_maps(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
         marks = [
             (label, q, "w*"),
-            ("paper's optimum (as controller angles)", poses.paper_optimum(robot), "ro"),
+            ("paper's optimum (as controller angles)", kappa.paper_optimum(robot), "ro"),
         ]
         plot_joint_plane(pmap, found, out / "joint_plane.png", marks)
         plot_cartesian(cmap, out / "cartesian.png")

@@ -7,8 +7,8 @@
 explicit stiffness prior (:mod:`vtestbed.design.priors`). Nominal geometry only, no truth.
 """
 
-from .criterion import CriterionValue, Optimum, criterion, inv_kappa_batch, optimize, paper_optimum
 from .influence import Influence, joint_influence
+from .kappa import CriterionValue, Optimum, criterion, inv_kappa_batch, optimize, paper_optimum
 from .optimal import CandidateTest, DesignReport, Selection, candidate_tests, evaluate, select_tests
 from .priors import NAMED_PRIORS, PAPER_TABLE5, StiffnessPrior, stiffness_prior
 from .regions import PoseConstraints, PoseSet, Region, find_regions, joint_plane_map, sample_poses

@@ -19,7 +19,7 @@ from scipy.stats import kendalltau
 
 from ..errors import OutOfRangeError, UnknownNameError
 from ..robots import RobotDescription
-from .criterion import (
+from .kappa import (
     PAPER_RANKING,
     PAPER_TABLE2_PER_DEG2,
     check_spherical_wrist,

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
 from ..robots import RobotDescription
-from .criterion import arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, point_name, reference_offset
+from .kappa import arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, point_name, reference_offset
 
 
 @dataclass(frozen=True)
