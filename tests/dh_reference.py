@@ -2,7 +2,7 @@
 
 import numpy as np
 
-# Paper Table 1 (decoded in DESIGN.md): alpha_{i-1} [deg], a_{i-1} [mm], d_i [mm].
+# Paper Table 1 (decoded; models/kuka_kr60_3/README.md): alpha_{i-1} [deg], a_{i-1} [mm], d_i [mm].
 TABLE_1 = [(0, 0, 815), (-90, 350, 0), (0, 850, 0), (-90, 145, 820), (90, 0, 0), (-90, 0, 170)]
 
 

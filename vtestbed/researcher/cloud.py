@@ -14,7 +14,7 @@ The chain follows the paper (Sec. 4.2) and runs unchanged on a lab scan read fro
 5. displacement of the block's reference point (B's origin) and rotation vector, in the scanner
    frame and, rotated with the scanner's calibrated pose, in the robot base frame. The paper's
    ``T = O1 O0^-1`` with its Euler angles is reported for comparison only: its translation
-   ``o1 - R o0`` is the motion of the scanner's origin, not of the block (DESIGN.md).
+   ``o1 - R o0`` is the motion of the scanner's origin, not of the block (docs/architecture.md).
 """
 
 from __future__ import annotations
