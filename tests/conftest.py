@@ -5,6 +5,9 @@ from vtestbed.lab import LabSetup
 from vtestbed.robots import load_robot
 from vtestbed.world.truth import load_truth
 
+# The default test pose (DH, deg): the block's three scanned faces are in view from 0.6 m.
+POSE_DEG = (0.0, -60.0, -20.0, 30.0, 50.0, 45.0)
+
 
 @pytest.fixture(scope="session")
 def robot():
@@ -25,3 +28,39 @@ def lab():
 @pytest.fixture
 def rng():
     return np.random.default_rng(20231)
+
+
+@pytest.fixture(scope="session")
+def optimum(robot):
+    """The criterion's optimum at the wrist centre (seed 3)."""
+    from vtestbed.design import kappa
+
+    return kappa.optimize(robot, seed=3)
+
+
+@pytest.fixture(scope="session")
+def scene():
+    """The default pose, unloaded: rig, true block pose, a placed scanner and its noise-free hits.
+
+    Shared read-only by the scanner, scan-noise and PLY tests (none of them moves the rig)."""
+    from vtestbed.world.rig import Rig
+    from vtestbed.world.scanner import Scanner
+
+    rig = Rig()
+    rig.command(np.radians(POSE_DEG))
+    rig.hook("hook_x", "ring_5")
+    state = rig.solve()
+    scanner = Scanner.place(rig.lab, state.block_pose)
+    hits = scanner.cast(rig.model, rig.data)
+    return rig, state, scanner, hits
+
+
+@pytest.fixture(scope="session")
+def tiny_sweep(tmp_path_factory):
+    """The tiny campaign (24 trials) swept on one process: (results, output folder)."""
+    from quick_campaign import tiny
+
+    from vtestbed.campaigns.runner import sweep
+
+    out = tmp_path_factory.mktemp("sweep") / "ref"
+    return sweep(tiny(), out, workers=1, progress=False), out

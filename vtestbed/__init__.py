@@ -30,6 +30,7 @@ _EXPORTS = {
     "simulate": "vtestbed.experiment",
     "identify_dataset": "vtestbed.experiment",
     "run": "vtestbed.experiment",
+    "diagnose": "vtestbed.researcher",
     "Campaign": "vtestbed.campaigns",
     "load_campaign": "vtestbed.campaigns",
     "sweep": "vtestbed.campaigns",

@@ -6,11 +6,15 @@ A dataset is a folder::
     tests.csv      one row per test: commanded pose, F/T readings unloaded and loaded, the two
                    point-cloud files; column ``group`` is ``identification`` or ``validation``
     clouds/*.ply   the scans, in the scanner frame, metres
+    repeats.csv    optional: repeat scans of the unloaded block, one row per scan: ``test_id``,
+                   ``repeat`` (1, 2, ...), ``cloud`` (path relative to the folder); the block and
+                   the scanner did not move between them, so they measure the scanner's noise
     truth.json     only in simulated datasets; identification never reads it (the world writes
                    it, :mod:`vtestbed.comparison` reads it)
 
 Units are in the column names (deg, N, Nm). Rows are appended as each test finishes, so an
-interrupted simulation keeps every finished test.
+interrupted simulation keeps every finished test (a test's repeat scans are written before its
+tests.csv row, which marks it finished).
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from .transforms import homogeneous, matrix_from_rotation_vector, rotation_vecto
 
 FORMAT = "vtestbed-dataset/1"
 SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"
+REPEATS_FILE = "repeats.csv"
+REPEAT_COLUMNS = ["test_id", "repeat", "cloud"]
 GROUPS = ("identification", "validation")
 _UNIT = {"F": "N", "T": "Nm"}
 
@@ -97,6 +103,8 @@ class DatasetSetup:
 @dataclass(frozen=True)
 class TestRecord:
     """One test as recorded: pose (in the setup's convention, deg), readings, cloud paths."""
+
+    __test__ = False  # a dataset class, not a pytest test class
 
     test_id: str
     group: str
@@ -173,6 +181,8 @@ def write_setup(root: str | Path, setup: DatasetSetup) -> None:
 class TestWriter:
     """Appends finished tests to tests.csv (flushed per row, so an interruption keeps them)."""
 
+    __test__ = False  # a dataset class, not a pytest test class
+
     def __init__(self, root: str | Path):
         self.root = Path(root)
         self.path = self.root / TESTS_FILE
@@ -201,7 +211,9 @@ class TestWriter:
         self.close()
 
 
-def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) -> list[TestRecord]:
+def read_tests(
+    root: str | Path, check_files: bool = True, sensor_range=None, sensor_name: str = "force sensor"
+) -> list[TestRecord]:
     """Read tests.csv; with ``check_files`` every referenced cloud must exist."""
     root = Path(root)
     path = root / TESTS_FILE
@@ -226,7 +238,7 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
         if row["group"] not in GROUPS:
             raise DatasetError(f"{where}: group must be one of {', '.join(GROUPS)}, got {row['group']!r}")
         if sensor_range is not None:
-            spec = ForceSensorSpec(wrench_range=tuple(sensor_range))
+            spec = ForceSensorSpec(name=sensor_name, wrench_range=tuple(sensor_range))
             for label, w in (("unloaded", wu), ("loaded", wl)):
                 try:
                     spec.check(w, f"{where}: {label} wrench")
@@ -250,3 +262,133 @@ def read_tests(root: str | Path, check_files: bool = True, sensor_range=None) ->
         dup = sorted({i for i in ids if ids.count(i) > 1})
         raise DatasetError(f"{path}: duplicate test ids {dup}")
     return records
+
+
+# ---------------------------------------------------------------------- repeat scans
+@dataclass(frozen=True)
+class RepeatRecord:
+    """One repeat scan of a test's unloaded block (same block pose, same scanner pose).
+
+    Attributes
+    ----------
+    test_id : str
+        The test (a ``test_id`` of tests.csv) whose unloaded block was scanned again.
+    repeat : int
+        The repeat's number, 1, 2, ... (the test's own unloaded scan is number 0).
+    cloud : Path
+        The scan (PLY, scanner frame); inside the dataset folder.
+    """
+
+    test_id: str
+    repeat: int
+    cloud: Path
+
+    def row(self, root: Path) -> list:
+        root = Path(root).resolve()
+        return [self.test_id, str(self.repeat), str(Path(self.cloud).resolve().relative_to(root))]
+
+
+def repeat_cloud_path(root: str | Path, test_id: str, repeat: int) -> Path:
+    """Where a simulation writes repeat ``repeat`` of ``test_id``: ``clouds/T001_repeat1.ply``."""
+    return Path(root) / CLOUD_DIR / f"{test_id}_repeat{repeat}.ply"
+
+
+def _read_repeat_rows(root: Path, test_ids, check_files: bool) -> list[RepeatRecord]:
+    """repeats.csv as records; ``test_ids`` None skips the check against tests.csv."""
+    path = root / REPEATS_FILE
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        missing = [c for c in REPEAT_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DatasetError(
+                f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(REPEAT_COLUMNS)})"
+            )
+        rows = list(reader)
+    base = root.resolve()
+    records, first_line = [], {}
+    for line, row in enumerate(rows, start=2):
+        tid = row.get("test_id") or ""
+        where = f"{path} line {line} (test {tid!r})"
+        if test_ids is not None and tid not in test_ids:
+            raise DatasetError(f"{where}: test_id {tid!r} is not a test of {root / TESTS_FILE}")
+        text = (row.get("repeat") or "").strip()
+        try:
+            repeat = int(text)
+        except ValueError:
+            repeat = 0
+        if repeat < 1:
+            raise DatasetError(f"{where}: repeat must be an integer >= 1 (1, 2, ...), got {text!r}")
+        if (tid, repeat) in first_line:
+            raise DatasetError(
+                f"{where}: repeat {repeat} of test {tid!r} is listed twice (first on line {first_line[tid, repeat]})"
+            )
+        first_line[tid, repeat] = line
+        rel = (row.get("cloud") or "").strip()
+        cloud = root / rel
+        if not rel or not cloud.resolve().is_relative_to(base):
+            raise DatasetError(
+                f"{where}: cloud {rel!r} must be a path inside the dataset folder {root}, relative to it "
+                f"(e.g. {CLOUD_DIR}/{tid}_repeat{repeat}.ply)"
+            )
+        if check_files and not cloud.is_file():
+            raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
+        records.append(RepeatRecord(tid, repeat, cloud))
+    return records
+
+
+def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecord]:
+    """Read repeats.csv (the repeat scans), or [] when the dataset has none.
+
+    Parameters
+    ----------
+    root : str or Path
+        The dataset folder.
+    check_files : bool
+        Every referenced cloud must exist.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file, the line and the field: a test_id not in tests.csv, a repeat that is not
+        an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing.
+    """
+    root = Path(root)
+    if not (root / REPEATS_FILE).is_file():
+        return []
+    test_ids = {r.test_id for r in read_tests(root, check_files=False)}
+    return _read_repeat_rows(root, test_ids, check_files)
+
+
+class RepeatWriter:
+    """Appends repeat scans to repeats.csv (flushed per row), like :class:`TestWriter`.
+
+    ``done`` holds the (test_id, repeat) pairs already recorded. A simulation writes a test's
+    repeats before its tests.csv row, so the file may name tests that tests.csv does not list yet.
+    """
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.path = self.root / REPEATS_FILE
+        new = not self.path.exists()
+        self.done = (
+            set() if new else {(r.test_id, r.repeat) for r in _read_repeat_rows(self.root, None, False)}
+        )
+        self._file = self.path.open("a", newline="")
+        self._csv = csv.writer(self._file)
+        if new:
+            self._csv.writerow(REPEAT_COLUMNS)
+            self._file.flush()
+
+    def append(self, record: RepeatRecord) -> None:
+        self._csv.writerow(record.row(self.root))
+        self._file.flush()
+        self.done.add((record.test_id, record.repeat))
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -9,20 +9,33 @@ physics in :mod:`vtestbed.world.physics`) and writes a lab-compatible dataset pl
 
 Reproducibility: test ``i`` of group ``g`` draws from ``SeedSequence(seed, spawn_key=(g, i))``,
 so a test's numbers do not depend on which other tests ran before it, and a resumed run gives
-the same dataset as an uninterrupted one.
+the same dataset as an uninterrupted one. Repeat scans (``[scanner] repeats``) draw from a
+separate stream (:func:`vtestbed.world.repeats.repeat_rng`), so they change no other number.
 """
 
 from __future__ import annotations
 
 import shutil
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import comparison, ply
-from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
+from .dataset import (
+    CLOUD_DIR,
+    REPEATS_FILE,
+    TRUTH_FILE,
+    DatasetSetup,
+    RepeatRecord,
+    RepeatWriter,
+    TestRecord,
+    TestWriter,
+    repeat_cloud_path,
+    write_setup,
+)
 from .errors import DatasetError
 from .files import read_json, write_json_atomic
 from .lab import LabSetup
@@ -31,6 +44,7 @@ from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
 from .scenario import Scenario
 from .world.physics import draw_readings, run_test_physics, test_rng
+from .world.repeats import draw_repeat_scans, repeat_rng
 from .world.rig import Rig
 from .world.sensors import ForceTorqueSensor
 from .world.truth import load_truth
@@ -71,9 +85,12 @@ def test_id(group: str, index: int) -> str:
     return f"{'T' if group == 'identification' else 'V'}{index + 1:03d}"
 
 
+test_id.__test__ = False  # a naming helper, not a pytest test
+
+
 def _remove_dataset(out: Path) -> None:
     """Delete the files a simulation writes in ``out`` (and nothing else)."""
-    for name in (TRUTH_FILE, "tests.csv", "setup.json"):
+    for name in (TRUTH_FILE, "tests.csv", "setup.json", REPEATS_FILE):
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / CLOUD_DIR, ignore_errors=True)
 
@@ -98,7 +115,7 @@ def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = 
         "robot": scenario.robot_name,
         "joint_names": list(rig.robot.joint_names),
         "stiffness_true_Nm_per_rad": rig.truth.stiffness_true.tolist(),
-        "effects": [],
+        "effects": [e.to_dict() for e in scenario.effects if not e.is_null],
         "tests": {},
     }
 
@@ -114,13 +131,20 @@ def simulate(
 
     Finished tests are kept: rerunning into the same folder does only what is missing. A folder
     holding another scenario's dataset is refused, or replaced with ``replace_stale``.
+
+    With ``scenario.scanner.repeats = r > 0``, every test (identification and validation) also
+    gets ``r`` repeat scans of its unloaded block (``clouds/<id>_repeatK.ply`` and rows of
+    ``repeats.csv``), written before the test's tests.csv row, which marks the test finished;
+    ``truth.json`` records ``"repeats": r``. setup.json and tests.csv do not depend on ``r``.
     """
     out = Path(out)
     timings = timings or Timings()
     lab = scenario.lab
-    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name))
+    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
     out.mkdir(parents=True, exist_ok=True)
     truth = _start_truth(out, scenario, rig, replace_stale)
+    repeats = scenario.scanner.repeats
+    truth["repeats"] = repeats
     write_setup(out, dataset_setup(scenario, lab))
     noise = scenario.scanner.noise_model
     sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
@@ -132,15 +156,26 @@ def simulate(
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), desc="simulate", unit="test")
-    with TestWriter(out) as writer:
+    with TestWriter(out) as writer, RepeatWriter(out) if repeats else nullcontext() as repeat_writer:
         for group, i, q, load in jobs:
             tid = test_id(group, i)
-            if tid not in writer.done:
-                rng = test_rng(scenario.seed, group, i)
+            todo = [k for k in range(1, repeats + 1) if (tid, k) not in repeat_writer.done] if repeats else []
+            if tid not in writer.done or todo:
                 phys = run_test_physics(
                     rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
                     placement, timings,
                 )  # fmt: skip
+            if todo:  # before the test's row: a resumed run finds the test finished only with them
+                t2 = time.perf_counter()
+                rep_rng = repeat_rng(scenario.seed, group, i)
+                clouds = draw_repeat_scans(phys.hits_unloaded, noise, rep_rng, repeats, scenario.effects)
+                timings.scan += time.perf_counter() - t2
+                for k in todo:
+                    path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
+                    repeat_writer.append(RepeatRecord(tid, k, path))
+                timings.write += time.perf_counter() - t2
+            if tid not in writer.done:
+                rng = test_rng(scenario.seed, group, i)
                 s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
                 t3 = time.perf_counter()
                 cloud0, w0, cloud1, w1 = draw_readings(
@@ -151,6 +186,7 @@ def simulate(
                     noise,
                     sensor,
                     rng,
+                    scenario.effects,
                 )
                 t4 = time.perf_counter()
                 timings.scan += t4 - t3

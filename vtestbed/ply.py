@@ -30,7 +30,11 @@ def _unit(length_unit: str) -> float:
 
 
 def write_ply(path, points, length_unit: str = "m", binary: bool = True) -> Path:
-    """Write (N, 3) points [m] as a PLY file (double precision) in ``length_unit`` ('m' or 'mm')."""
+    """Write (N, 3) points [m] as a PLY file in ``length_unit`` ('m' or 'mm').
+
+    The binary default stores doubles exactly; ``binary=False`` goes through open3d's ASCII
+    writer, which keeps 6 significant digits (about 1 um at 0.6 m): for reading by eye only.
+    """
     scale = _unit(length_unit)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_as_points(points) / scale))
     path = Path(path)

@@ -23,6 +23,7 @@ from .files import read_toml
 from .lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N, LabSetup, parse_lab
 from .robots import DEFAULT_ROBOT, RobotDescription, load_robot
 from .schema import Fields
+from .world.effects import parse_effects
 from .world.scan_noise import ScanNoise
 from .world.sensors import DEFAULT_NOISE_STD, NO_BIAS
 
@@ -32,6 +33,7 @@ DEFAULT_METHOD = "fgls"
 DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
 POINT_SPACING_RANGE_M = (2e-5, 5e-3)
 FT_NOISE_STD_MAX, FT_BIAS_MAX = 50.0, 100.0  # N (N*m)
+REPEATS_RANGE = (0, 20)  # repeat scans of the unloaded block per test (0: none; 2 or more recommended)
 TOP_LEVEL = (
     "name",
     "description",
@@ -45,6 +47,7 @@ TOP_LEVEL = (
     "identification",
     "validation",
     "campaign",
+    "world",
 )
 
 
@@ -59,10 +62,12 @@ class LoadPlan:
 
 @dataclass(frozen=True)
 class ScannerPlan:
-    """Where the scanner stands and how it errs.
+    """Where the scanner stands, how it errs, and how often the unloaded block is scanned again.
 
     ``noise_params`` are the file's overrides of :class:`ScanNoise`; ``noise_model`` is the
-    model they give (None for a perfect scanner, ``noise = false``).
+    model they give (None for a perfect scanner, ``noise = false``). ``repeats`` is the number
+    of further scans of the unloaded block per test (``repeats.csv`` in the dataset), from which
+    the researcher estimates a model-free noise floor (:mod:`vtestbed.researcher.noise_floor`).
     """
 
     distance: float = DEFAULT_SCANNER_DISTANCE_M  # m, scanner to block centre
@@ -70,6 +75,7 @@ class ScannerPlan:
     noise_params: dict = field(default_factory=dict)
     spacing: float | None = None  # m, point spacing on the block; None: the scanner's default
     noise_model: ScanNoise | None = field(default_factory=ScanNoise)
+    repeats: int = 0  # repeat scans of the unloaded block per test, REPEATS_RANGE
 
     @property
     def placement(self) -> dict:
@@ -99,6 +105,7 @@ class Scenario:
     validation_poses: np.ndarray  # (n_val, n) DH [rad], may be empty
     validation_load: LoadPlan
     lab: LabSetup = field(default_factory=LabSetup)
+    effects: tuple = ()  # hidden world effects (vtestbed.world.effects): truth, never in the dataset
     source: Path | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
@@ -159,7 +166,7 @@ def _load_plan(table, count: int, lab: LabSetup, f: Fields, prefix: str) -> Load
 
 
 def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
-    f.table(table, "scanner", ("distance_m", "noise", "noise_params", "spacing_m"))
+    f.table(table, "scanner", ("distance_m", "noise", "noise_params", "spacing_m", "repeats"))
     noise = f.boolean(table.get("noise", True), "scanner.noise")
     params = f.table(
         table.get("noise_params", {}), "scanner.noise_params", tuple(ScanNoise.__dataclass_fields__)
@@ -178,6 +185,7 @@ def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
         noise_params=dict(params),
         spacing=None if spacing is None else f.number(spacing, "scanner.spacing_m", *POINT_SPACING_RANGE_M),
         noise_model=model if noise else None,
+        repeats=f.integer(table.get("repeats", 0), "scanner.repeats", *REPEATS_RANGE),
     )  # fmt: skip
 
 
@@ -209,6 +217,8 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     load = _load_plan(data.get("load", {}), len(poses), lab, f, "load.")
     scanner = _scanner_plan(data.get("scanner", {}), lab, f)
     force = _force_sensor_plan(data.get("force_sensor", {}), f)
+    world = f.table(data.get("world", {}), "world", ("effects",))
+    effects = parse_effects(world.get("effects", []), f)
     ident = f.table(data.get("identification", {}), "identification", ("method",))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
     val = f.table(
@@ -235,6 +245,7 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         validation_poses=val_poses,
         validation_load=val_load,
         lab=lab,
+        effects=effects,
         source=Path(source) if source else None,
         raw=data,
     )

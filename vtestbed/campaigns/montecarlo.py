@@ -76,7 +76,7 @@ class PreparedScenario:
 def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedScenario:
     """Solve every test's equilibrium and ray-cast both scans once (deterministic)."""
     lab = scenario.lab
-    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name))
+    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
     placement = scenario.scanner.placement
     jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
     if include_validation:
@@ -124,7 +124,14 @@ def measure_trial(
     for t in tests if tests is not None else prepared.identification_tests():
         rng = test_rng(seed, t.group, t.index)
         cloud0, w0, cloud1, w1 = draw_readings(
-            t.hits_unloaded, t.hits_loaded, t.wrench_unloaded, t.wrench_loaded, noise, sensor, rng
+            t.hits_unloaded,
+            t.hits_loaded,
+            t.wrench_unloaded,
+            t.wrench_loaded,
+            noise,
+            sensor,
+            rng,
+            prepared.scenario.effects,
         )
         record = TestRecord(t.test_id, t.group, np.degrees(t.q), w0, w1, t.scanner_pose, Path(), Path())
         out.append(measure_arrays(record, cloud0, cloud1, prepared.setup, kin))

@@ -54,6 +54,8 @@ from ..world.truth import load_truth
 class TestPlan:
     """An ordered list of tests (pose, hook, ring, tension) that a campaign cell runs on."""
 
+    __test__ = False  # a data class, not a pytest test class
+
     pose_set: str
     q: np.ndarray  # (n, 6) DH [rad]
     hooks: tuple[str, ...]
@@ -101,7 +103,9 @@ class FeasibilityChecker:
 
     def __init__(self, scenario: Scenario, lab: LabSetup | None = None):
         self.lab = lab or scenario.lab
-        self.rig = Rig(scenario.robot, self.lab, truth=load_truth(scenario.robot_name))
+        self.rig = Rig(
+            scenario.robot, self.lab, truth=load_truth(scenario.robot_name), effects=scenario.effects
+        )
         self.distance = scenario.scanner.distance
         self.placement = scenario.scanner.placement
         self.cache: dict = {}

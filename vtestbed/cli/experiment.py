@@ -32,12 +32,41 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _identify_with_model(args) -> int:
+    """``identify --model FILE``: the paper's model plus the file's terms, against the noise floor."""
+    from ..researcher.discrepancy import identify_with_model
+
+    out = identify_with_model(args.dataset, args.model)
+    if args.json:
+        print(json.dumps(out, indent=1, default=float))
+        return 0
+    model = out["model"]
+    print(f"model: the paper's plus {', '.join(model['terms']) or 'nothing'}; chi^2 {model['chi2']:.1f} "
+          f"with {model['dof']} degrees of freedom against the noise floor (p = {model['p_value']:.3g})")  # fmt: skip
+    for name, k, s in zip(
+        out["joint_names"], model["stiffness_Nm_per_rad"], model["stiffness_std_Nm_per_rad"]
+    ):
+        print(f"{name:8}{k * 1e3:18.4e} +- {s * 1e3:.2e} N*mm/rad")
+    for label, params in model["parameters"].items():
+        stds = model["parameters_std"][label]
+        print(f"{label}: " + ", ".join(f"{p} = {v:.4g} +- {stds[p]:.2g}" for p, v in params.items()))
+    if out["validation"]:
+        print(f"validation prediction error / noise floor: {out['validation']['ratio_to_floor']:.2f}")
+    return 0
+
+
 def _cmd_identify(args) -> int:
+    if args.model is not None:
+        return _identify_with_model(args)
     from ..comparison import compare, read_truth
     from ..experiment import identify_dataset
+    from ..researcher.noise_floor import estimate_noise_floor
 
     setup, measurements, result = identify_dataset(args.dataset, args.method, progress=not args.quiet)
     out = {"dataset": str(args.dataset), **result.as_dict()}
+    floor = estimate_noise_floor(args.dataset, measurements)  # None without repeat scans
+    if floor is not None:
+        out["noise_floor"] = floor.as_dict()
     truth = None if args.no_truth else read_truth(args.dataset)
     if truth is not None:
         out["joints"] = compare(result, truth)
@@ -57,6 +86,8 @@ def _cmd_identify(args) -> int:
             line += f"{out['joints'][i]['rel_err'] * 100:12.3f}"
         print(line)
     print(f"condition number {result.condition_number:.3g}, reduced chi^2 {result.chi2_reduced:.3g}")
+    if floor is not None:
+        print(floor.summary())
     for note in result.warnings:
         print(f"warning: {note}")
     return 0
@@ -97,6 +128,9 @@ def register(sub) -> None:
     p.add_argument("--method", default="fgls", choices=("ols", "fgls"))
     p.add_argument("--json", action="store_true")
     p.add_argument("--no-truth", action="store_true", help="do not compare with truth.json even if present")
+    p.add_argument(
+        "--model", type=Path, help="model.json from 'vtestbed diagnose': add its terms (needs repeat scans)"
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_identify)
 

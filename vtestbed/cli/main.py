@@ -15,6 +15,8 @@ COMMAND_MODULES = [
     "vtestbed.cli.scan",
     "vtestbed.cli.poses",
     "vtestbed.cli.sweep",
+    "vtestbed.cli.effects",
+    "vtestbed.cli.diagnose",
 ]
 
 

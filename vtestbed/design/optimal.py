@@ -32,7 +32,7 @@ from ..researcher.kinematics import ArmKinematics
 from ..robots import RobotDescription
 
 # Block-displacement noise of the default scan pipeline (VTOP 200B noise model, 0.6 m, open3d fit),
-# measured against the truth over 30 seeds x 8 tests (tests/test_design.py): 5.3 um, 8.5 urad.
+# measured against the truth over 30 seeds x 8 tests (tests/test_design_optimal.py): 5.3 um, 8.5 urad.
 SIGMA_P = 5.3e-6  # m, translational displacement std per axis
 SIGMA_R = 8.5e-6  # rad, rotational displacement std per axis
 CRITERIA = ("D", "A", "E")

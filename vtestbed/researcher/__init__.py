@@ -8,10 +8,14 @@ unchanged on a dataset recorded in a real lab.
 The chain: :func:`fit_block_frame` (three planes of the block in a cloud) ->
 :func:`measure_test` (displacement, wrench and Jacobian of one test, block frame) ->
 :func:`identify` (``delta_d = A c`` by least squares, with an honest covariance) ->
-:func:`convergence` / :func:`validation` (the paper's Figures 10 and 11). Units: SI.
+:func:`convergence` / :func:`validation` (the paper's Figures 10 and 11). The discrepancy
+workflow: :func:`estimate_noise_floor` (repeat scans) and :func:`diagnose` (detect, name, add
+the effects the paper's model misses; candidate terms in :mod:`.candidates`). Units: SI.
 """
 
+from .candidates import Candidate, candidates
 from .cloud import BlockFrame, FitParams, fit_block_frame
+from .discrepancy import diagnose
 from .identify import IdentificationResult, a_matrix, identify
 from .kinematics import ArmKinematics, build_pinocchio_model
 from .measure import (
@@ -23,17 +27,23 @@ from .measure import (
     predict_displacement,
     wrench_at_block,
 )
+from .noise_floor import NoiseFloor, estimate_noise_floor
 from .report import convergence, plot_convergence, plot_validation, validation
 
 __all__ = [
     "ArmKinematics",
     "BlockFrame",
+    "Candidate",
+    "NoiseFloor",
     "FitParams",
     "IdentificationResult",
     "TestMeasurement",
     "a_matrix",
     "build_pinocchio_model",
+    "candidates",
     "convergence",
+    "diagnose",
+    "estimate_noise_floor",
     "fit_block_frame",
     "identify",
     "identify_measurements",

@@ -33,6 +33,8 @@ from .kinematics import ArmKinematics
 class TestMeasurement:
     """One test reduced to what the identification needs (block frame, SI)."""
 
+    __test__ = False  # a data class, not a pytest test class
+
     test_id: str
     group: str
     q: np.ndarray  # (n,) commanded DH angles [rad]
@@ -57,6 +59,29 @@ def commanded_pose(record: TestRecord, setup: DatasetSetup, robot) -> np.ndarray
     return robot.controller_to_dh(q) if setup.angle_convention == "controller" else q
 
 
+def nominal_block_frame(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics):
+    """The commanded pose and where the block should be in the scanner frame.
+
+    Returns ``(q, nominal)``: the commanded DH angles (n,) [rad] (checked against the joint
+    limits) and the block frame's predicted pose (4, 4) in the scanner frame, from the rough
+    scanner pose and the nominal kinematics: enough to crop the clutter around the block.
+    """
+    q = commanded_pose(record, setup, kin.robot)
+    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
+    return q, invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
+
+
+def fit_scan(points: np.ndarray, nominal: np.ndarray, setup: DatasetSetup, label: str) -> np.ndarray:
+    """The fitted block frame (4, 4) of one cloud (N, 3) [m, scanner frame] near ``nominal``.
+
+    Raises a ScanError that starts with ``label`` (e.g. ``test T001, unloaded cloud``).
+    """
+    try:
+        return cloud.fit_block_frame(points, nominal, cloud.FitParams(edge_m=setup.block_edge)).pose
+    except VtestbedError as exc:
+        raise ScanError(f"{label}: {exc}") from None
+
+
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
     """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian."""
     clouds = []
@@ -76,21 +101,12 @@ def measure_arrays(
     kin: ArmKinematics,
 ) -> TestMeasurement:
     """As :func:`measure_test`, with the clouds (N, 3) [m, scanner frame] already in memory."""
-    q = commanded_pose(record, setup, kin.robot)
-    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
-    # Where the block should be in the scanner frame, from the rough scanner pose and the
-    # nominal kinematics: enough to crop the clutter. The loaded scan starts from the
-    # unloaded fit (the block moves by less than a millimetre).
-    nominal = invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
-    params = cloud.FitParams(edge_m=setup.block_edge)
+    q, nominal = nominal_block_frame(record, setup, kin)
+    # The loaded scan starts from the unloaded fit (the block moves by less than a millimetre).
     frames = []
     for label, points in (("unloaded", cloud_unloaded), ("loaded", cloud_loaded)):
-        try:
-            fit = cloud.fit_block_frame(points, nominal, params)
-        except VtestbedError as exc:
-            raise ScanError(f"test {record.test_id}, {label} cloud: {exc}") from None
-        frames.append(fit.pose)
-        nominal = fit.pose
+        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, {label} cloud"))
+        nominal = frames[-1]
     return TestMeasurement(
         test_id=record.test_id,
         group=record.group,
@@ -107,7 +123,9 @@ def load_measurements(root: str | Path, progress: Callable[[int, int], None] | N
     """Read and reduce a dataset: returns (setup, list of TestMeasurement)."""
     root = Path(root)
     setup = read_setup(root)
-    records = read_tests(root, check_files=True, sensor_range=setup.sensor_range)
+    records = read_tests(
+        root, check_files=True, sensor_range=setup.sensor_range, sensor_name=setup.sensor_name
+    )
     if not records:
         raise DatasetError(f"{root / 'tests.csv'} holds no tests")
     robot = load_robot(setup.robot)

@@ -10,8 +10,10 @@ The researcher's side (:mod:`vtestbed.researcher`) never imports this package: o
 cross, through a dataset (:mod:`vtestbed.dataset`). Units: SI, poses in the robot base frame.
 """
 
+from .effects import EFFECTS, WorldEffect
 from .mjcf import SceneEffect, build_robot_spec, build_scene_spec, model_files, write_model_files
 from .physics import TestPhysics, draw_readings, run_test_physics, test_rng
+from .repeats import draw_repeat_scans, repeat_rng
 from .rig import Rig, RigState
 from .scan_noise import NoisyScan, ScanGeometry, ScanNoise, scaled_noise
 from .scanner import Scanner
@@ -19,11 +21,13 @@ from .sensors import ForceTorqueSensor
 from .truth import RobotTruth, load_truth
 
 __all__ = [
+    "EFFECTS",
     "ForceTorqueSensor",
     "NoisyScan",
     "Rig",
     "RigState",
     "RobotTruth",
+    "WorldEffect",
     "ScanGeometry",
     "ScanNoise",
     "Scanner",
@@ -32,8 +36,10 @@ __all__ = [
     "build_robot_spec",
     "build_scene_spec",
     "draw_readings",
+    "draw_repeat_scans",
     "load_truth",
     "model_files",
+    "repeat_rng",
     "run_test_physics",
     "scaled_noise",
     "test_rng",

@@ -10,8 +10,10 @@ spring stiffness is the true joint stiffness (:class:`~vtestbed.world.truth.Robo
 spring reference (``qpos_spring``) is the commanded pose, set by :mod:`vtestbed.world.rig` at run
 time.
 
-Further physics (link compliance, a gravity compensator, ...) comes in as :class:`SceneEffect`
-objects that edit the spec; the researcher side never sees them.
+Hidden physics (link compliance, a gravity compensator, ...) comes in as effects
+(:mod:`vtestbed.world.effects`): extra hinges inserted before a body's own joint, or any other
+edit of the spec; the researcher side never sees them. Effects whose size is zero are left out,
+so the world is then exactly the clean one.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, robot_dir
 from ..transforms import quat_wxyz, rot_x
+from .effects.structure import add_hinges
 from .truth import RobotTruth, load_truth
 
 # Names the rest of vtestbed relies on.
@@ -44,16 +47,18 @@ _LINK_RADII = (0.16, 0.11, 0.10, 0.075, 0.065, 0.05)
 
 
 class SceneEffect(Protocol):
-    """A physical effect of the world that the paper's model leaves out.
+    """What the scene builder asks of an effect (see :class:`vtestbed.world.effects.WorldEffect`).
 
-    ``apply`` edits the scene spec before compilation (add a body, a tendon, a joint, ...).
-    The rig solves equilibrium over every degree of freedom of the compiled model, so an
-    effect that adds joints needs nothing else.
+    ``hinges`` are inserted into a body before its own joint; ``edit_spec`` edits the spec before
+    compilation (add a site, a tendon, ...). The rig solves equilibrium over every degree of
+    freedom of the compiled model, so an effect that adds joints needs nothing else.
     """
 
     name: str
 
-    def apply(self, spec: mujoco.MjSpec, robot: RobotDescription, lab: LabSetup) -> None: ...
+    def hinges(self, robot: RobotDescription) -> tuple: ...
+
+    def edit_spec(self, spec: mujoco.MjSpec, robot: RobotDescription, lab: LabSetup) -> None: ...
 
 
 def _new_spec(model_name: str) -> mujoco.MjSpec:
@@ -73,9 +78,19 @@ def _visual_geom(body, **kwargs):
     return geom
 
 
-def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription, truth: RobotTruth) -> mujoco.MjsBody:
-    """Add the robot chain to ``spec``; returns the last link's body."""
+def _add_robot(
+    spec: mujoco.MjSpec, robot: RobotDescription, truth: RobotTruth, hinges: tuple = ()
+) -> mujoco.MjsBody:
+    """Add the robot chain to ``spec`` (``hinges``: effects' extra hinges); returns the last link."""
     base = spec.worldbody.add_body(name="base")
+    base_hinges = [h for h in hinges if h.body == 0]
+    if base_hinges:  # a compliant foundation moves the base: it needs its mass (a 0.3 m x 0.3 m drum)
+        base.explicitinertial = True
+        base.mass = max(robot.base_mass, 1.0)
+        base.ipos = [0.0, 0.0, 0.15]
+        side = base.mass * (3 * 0.3**2 + 0.3**2) / 12
+        base.inertia = [side, side, base.mass * 0.3**2 / 2]
+    add_hinges(base, base_hinges)
     _visual_geom(
         base,
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
@@ -93,6 +108,7 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotDescription, truth: RobotTruth) 
         body.mass = joint.mass
         body.ipos = list(joint.com)
         body.inertia = list(joint.inertia_diag)
+        add_hinges(body, [h for h in hinges if h.body == i + 1])  # before the joint: they act on link i
         hinge = body.add_joint(name=joint.name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
         hinge.range = [joint.lower, joint.upper]
         hinge.stiffness[0] = truth.stiffness[i]
@@ -219,7 +235,8 @@ def build_scene_spec(
     spec.option.timestep = 2e-4
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # a statics rig: no contacts
-    flange = _add_robot(spec, robot, truth)
+    effects = tuple(e for e in effects if not e.is_null)
+    flange = _add_robot(spec, robot, truth, tuple(h for e in effects for h in e.hinges(robot)))
     _add_tool(flange, lab)
     _add_table_and_wire(spec, lab)
     for kind, suffix in (
@@ -228,7 +245,7 @@ def build_scene_spec(
     ):
         spec.add_sensor(name=f"ft_{suffix}", type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=SENSOR_SITE)
     for effect in effects:
-        effect.apply(spec, robot, lab)
+        effect.edit_spec(spec, robot, lab)
     return spec
 
 

@@ -31,9 +31,14 @@ def test_rng(seed: int, group: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(GROUP_KEYS[group], index)))
 
 
+test_rng.__test__ = False  # a seeding helper, not a pytest test
+
+
 @dataclass(frozen=True)
 class TestPhysics:
     """One test in the truth world, before any noise: both equilibria and both ray casts."""
+
+    __test__ = False  # a data class, not a pytest test class
 
     unloaded: RigState
     loaded: RigState
@@ -88,14 +93,27 @@ def draw_readings(
     noise: ScanNoise | None,
     sensor: ForceTorqueSensor,
     rng: np.random.Generator,
+    effects: tuple = (),
 ):
     """One test's noisy measurements, drawn in a fixed order: scan, F/T, scan, F/T.
 
-    ``noise=None`` is a perfect scanner (it draws nothing). Returns (cloud0, w0, cloud1, w1):
-    clouds (N, 3) [m] in the scanner frame, wrenches (6,) [N, N*m] in the sensor frame.
+    ``noise=None`` is a perfect scanner (it draws nothing). Measurement-chain ``effects`` (a
+    misaligned sensor, a drifting bias, a scale error) change what the instruments report; they
+    draw nothing, so the random stream is the same with or without them. Returns (cloud0, w0,
+    cloud1, w1): clouds (N, 3) [m] in the scanner frame, wrenches (6,) [N, N*m] in the sensor
+    frame.
     """
+    chain = tuple(e for e in effects if e.changes_measurement and not e.is_null)
     cloud0 = noise.apply(hits_unloaded, rng) if noise is not None else hits_unloaded.points_m.copy()
-    w0 = sensor.read(wrench_unloaded, rng)
+    w0 = sensor.read(_reported_wrench(wrench_unloaded, "unloaded", chain), rng)
     cloud1 = noise.apply(hits_loaded, rng) if noise is not None else hits_loaded.points_m.copy()
-    w1 = sensor.read(wrench_loaded, rng)
+    w1 = sensor.read(_reported_wrench(wrench_loaded, "loaded", chain), rng)
+    for effect in chain:
+        cloud0, cloud1 = effect.scan_points(cloud0), effect.scan_points(cloud1)
     return cloud0, w0, cloud1, w1
+
+
+def _reported_wrench(wrench: np.ndarray, phase: str, chain: tuple) -> np.ndarray:
+    for effect in chain:
+        wrench = effect.wrench_reading(wrench, phase)
+    return wrench

@@ -70,8 +70,10 @@ class Rig:
         Sensor, block, table and wire; defaults follow the paper.
     truth : RobotTruth, optional
         True joint stiffness (and settling terms); defaults to ``models/<robot>/truth.toml``.
-    effects : tuple of mjcf.SceneEffect
-        Extra physics the paper's model leaves out.
+    effects : tuple of vtestbed.world.effects.WorldEffect
+        Hidden physics the paper's model leaves out (effects of size zero are ignored, so the
+        world is then the clean one). Measurement-chain effects are applied by
+        :func:`vtestbed.world.physics.draw_readings`, not here.
     gravity : bool
         Switch gravity off for clean-load checks.
     """
@@ -87,7 +89,11 @@ class Rig:
         self.robot = robot or load_robot()
         self.lab = lab or PAPER_LAB
         self.truth = truth or load_truth(self.robot.name)
-        self.model = mjcf.build_scene_spec(self.robot, self.truth, self.lab, effects).compile()
+        self.effects = tuple(e for e in effects if not e.is_null)
+        for i, effect in enumerate(self.effects):
+            effect.check_world(self.robot, self.truth, f"world.effects[{i}] ({effect.name})")
+        self._joint_effects = tuple(e for e in self.effects if e.has_joint_forces)
+        self.model = mjcf.build_scene_spec(self.robot, self.truth, self.lab, self.effects).compile()
         if not gravity:
             self.model.opt.gravity[:] = 0.0
         self.data = mujoco.MjData(self.model)
@@ -129,9 +135,9 @@ class Rig:
         """
         self.slacken_wire()
         if hook is not None:
-            pos = self.lab.block.hook(hook)
-            block_in_tool = self.lab.block_in_flange[:3, 3] - self.lab.sensor.origin_in_flange
-            self.model.site_pos[self._hook_site] = block_in_tool + pos
+            self.lab.block.hook(hook)  # checks the name, listing the valid ones
+            # the hook's own site: where the block really is (a block_offset effect moves it)
+            self.model.site_pos[self._hook_site] = self.model.site_pos[self.model.site(hook).id]
             self.hook_name = hook
         if anchor is not None:
             self.model.site_pos[self._anchor_site] = self.lab.table.anchor(anchor)
@@ -164,12 +170,27 @@ class Rig:
         mujoco.mj_passive(m, d)
         mujoco.mj_rne(m, d, 0, self._bias)
         r = d.qfrc_passive - self._bias
+        if self._joint_effects:
+            r[self._joint_dof] += self._effect_forces(qpos[self._joint_qpos])
         if self._external is not None:
             self._applied[:] = 0.0
             point = d.site_xpos[self._site[mjcf.BLOCK_SITE]]
             mujoco.mj_applyFT(m, d, *self._external, point, self._tool_body, self._applied)
             r = r + self._applied
         return r
+
+    def generalized_force(self, qpos) -> np.ndarray:
+        """(nv,) net generalized force [N*m] at ``qpos`` (every dof) and zero velocity: springs,
+        tendons, joint-level effects and an applied wrench minus gravity; zero at equilibrium."""
+        return self._residual(np.asarray(qpos, dtype=float)).copy()
+
+    def _effect_forces(self, q: np.ndarray) -> np.ndarray:
+        """(n,) generalized force [N*m] of the joint-level effects at joint angles ``q`` [rad]."""
+        deflection = q - self._q_cmd
+        total = self._joint_effects[0].joint_forces(deflection)
+        for effect in self._joint_effects[1:]:
+            total += effect.joint_forces(deflection)
+        return total
 
     def solve(self, max_iterations: int = 50, tol: float = RESIDUAL_TOL) -> RigState:
         """Static equilibrium under gravity, springs and wire at the current settings."""
@@ -253,7 +274,12 @@ class Rig:
         d.qpos[:] = m.qpos_spring if q_start is None else q_start
         if self._external is not None:
             raise OutOfRangeError("settle() supports the wire and gravity only, not an external wrench")
-        mujoco.mj_step(m, d, nstep=int(round(duration / m.opt.timestep)))
+        steps = int(round(duration / m.opt.timestep))
+        if not self._joint_effects:
+            mujoco.mj_step(m, d, nstep=steps)
+        for _ in range(steps if self._joint_effects else 0):  # joint-level effects act through qfrc_applied
+            d.qfrc_applied[self._joint_dof] = self._effect_forces(d.qpos[self._joint_qpos])
+            mujoco.mj_step(m, d)
         state = self._readout(d.qpos.copy(), float(np.max(np.abs(self._residual(d.qpos.copy())))), 0)
         return state
 

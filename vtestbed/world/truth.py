@@ -69,6 +69,10 @@ def load_truth(name: str) -> RobotTruth:
     robot: RobotDescription = load_robot(name)
     source = robot_dir(name) / TRUTH_FILE_NAME
     data = read_toml(source, "world truth", DescriptionError)
+    if data.get("robot", robot.name) != robot.name:
+        raise DescriptionError(
+            f"{source}: robot = {data.get('robot')!r} does not match the description {robot.name!r}"
+        )
     tables = data.get("joints")
     if (
         not isinstance(tables, list)

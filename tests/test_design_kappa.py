@@ -1,15 +1,13 @@
-"""The arm-wrist criterion, its optimum, joint influence and regions, against independent references:
-Pinocchio Jacobians, closed forms of the two factors, brute-force grids and the paper's tables."""
+"""The arm-wrist criterion and its optimum against independent references: Pinocchio Jacobians,
+closed forms of the two factors, brute-force grids and the paper's tables."""
 
-import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from vtestbed.cli.main import main
-from vtestbed.design import influence, kappa, regions
+from vtestbed.design import kappa
 from vtestbed.errors import JointLimitError, UnknownNameError
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import RobotDescription
@@ -152,11 +150,6 @@ def test_bad_input_is_refused_with_a_clear_error(robot):
         kappa.criterion(robot, q, point="elbow")
 
 
-@pytest.fixture(scope="module")
-def optimum(robot):
-    return kappa.optimize(robot, seed=3)
-
-
 def test_optimum_is_reproducible_and_a_local_maximum_inside_the_limits(robot, optimum):
     again = kappa.optimize(robot, seed=3)
     np.testing.assert_array_equal(again.q, optimum.q)
@@ -189,84 +182,3 @@ def test_paper_pose_is_high_only_as_controller_angles_and_is_not_an_optimum(robo
         lambda x: kappa.inv_kappa_batch(robot, np.r_[q[0], x, q[5]][None])[0], q[1:5]
     )
     assert abs(grad[3]) > 0.1  # theta_5 = 59.4 deg is not stationary: the wrist factor peaks at 90 deg
-
-
-def test_joint5_curvature_matches_the_closed_form(robot, optimum):
-    inf = influence.joint_influence(robot, optimum.q, joints=(4, 5))
-    # f = arm * sqrt(3 s^2 / (s^2 + 2)); at theta_5 = 90 deg d2f/dtheta^2 = -2/3 arm per rad^2
-    expected = -2.0 / 3.0 * kappa.criterion(robot, optimum.q).inv_kappa_arm * influence.DEG2
-    assert inf.curvature_per_deg2[1] == pytest.approx(expected, rel=1e-4)
-    assert abs(inf.curvature_per_deg2[0]) < 1e-12
-
-
-def test_fourier_fit_recovers_a_trigonometric_polynomial():
-    x = np.linspace(-170, 130, 601)
-    w = 2 * np.pi / 300 * 0.7
-    y = 0.3 + 0.2 * np.cos(w * x) - 0.1 * np.sin(3 * w * x) + 0.05 * np.cos(8 * w * x)
-    fit = influence.fourier_fit(x, y, order=8, fit_frequency=True)
-    d2 = -0.2 * w**2 * np.cos(w * 10) + 0.9 * w**2 * np.sin(3 * w * 10) - 3.2 * w**2 * np.cos(8 * w * 10)
-    assert fit.w == pytest.approx(w, rel=1e-6) and fit.second_derivative(10.0) == pytest.approx(d2, rel=1e-5)
-
-
-@pytest.mark.parametrize("point", ["wrist", "flange", "block"])
-def test_curvature_magnitudes_against_paper_table2(robot, point):
-    opt = kappa.optimize(robot, point=point, seed=0)
-    curv = influence.joint_influence(robot, opt.q, point=point).curvature_per_deg2
-    paper = np.abs(kappa.PAPER_TABLE2_PER_DEG2)
-    assert abs(curv[0]) / paper[0] == pytest.approx(1.1, abs=0.1)  # joint 2 agrees
-    assert 1.0 < abs(curv[3]) / paper[3] < 2.0  # joint 5 within a factor 2
-    assert 3.0 < abs(curv[1]) / paper[1] < 5.0  # joint 3 does not: 4x the paper's
-    if point == "block":  # a point off the wrist gives joint 4 the paper's small influence
-        assert abs(curv[2]) / paper[2] == pytest.approx(1.0, abs=0.1)
-
-
-@pytest.fixture(scope="module")
-def plane(robot, optimum):
-    return regions.joint_plane_map(robot, optimum.q, step_deg=1.0)
-
-
-def test_four_regions_at_the_expected_peaks(robot, plane):
-    found = regions.find_regions(plane)
-    peaks = {r.name: np.degrees(r.peak) for r in found}
-    assert list(peaks) == ["Z1", "Z2", "Z3", "Z4"]
-    expected = {"Z1": (-121.49, 52.18), "Z2": (-124.21, -193.35), "Z3": (-8.02, 52.18), "Z4": (6.66, -210.0)}
-    for name, (t2, t3) in expected.items():  # local optima from Nelder-Mead refinement (mirror pairs)
-        np.testing.assert_allclose(peaks[name], (t2, t3), atol=1.01)
-    values = {r.name: r.peak_value for r in found}
-    assert values["Z1"] == pytest.approx(values["Z3"], abs=1e-3)  # same wrist centre, mirrored elbow
-
-
-def test_constraints_exclude_the_regions_the_paper_excludes(robot, lab, plane):
-    box = regions.PoseConstraints(min_height=0.8, box_min=(0.3, -1, 0), box_max=(2.3, 1, 2.2))
-    found = {r.name: r for r in regions.restrict(regions.find_regions(plane), plane, robot, box)}
-    assert "lab box" in found["Z2"].excluded  # behind the robot
-    assert "below z = 0.8 m" in found["Z3"].excluded  # too close to the floor
-    assert found["Z1"].excluded is None and found["Z4"].excluded is None
-    draw = [regions.sample_poses(robot, plane, found.values(), 12, np.random.default_rng(9), constraints=box,
-                                 wrist_jitter_deg=20, threshold=0.7) for _ in range(2)]  # fmt: skip
-    np.testing.assert_array_equal(draw[0].q, draw[1].q)
-    assert set(draw[0].regions) == {"Z1", "Z4"} and np.all(box.ok(robot, draw[0].q))
-    np.testing.assert_allclose(draw[0].inv_kappa, kappa.inv_kappa_batch(robot, draw[0].q), rtol=1e-12)
-    assert draw[0].inv_kappa.min() >= 0.7
-    kin = ArmKinematics(robot, lab.block_in_flange)  # independent check of the block positions
-    block = np.array([kin.tool_pose(q)[:3, 3] for q in draw[0].q])
-    assert block[:, 2].min() >= 0.8 and np.all((block >= (0.3, -1, 0)) & (block <= (2.3, 1, 2.2)))
-
-
-def test_cartesian_map_holds_the_plane_maximum(robot, optimum, plane):
-    cmap = regions.cartesian_map(robot, optimum.q, step_deg=1.0, bin_size=0.05)
-    assert np.nanmax(cmap.values) == pytest.approx(plane.values.max(), abs=1e-12)
-    assert np.nanmin(cmap.values) >= 0.0
-
-
-def test_cli_criterion_and_optimize(robot, tmp_path, capsys):
-    assert main(["poses", "criterion", "--q-deg", "0,-30,-20,40,60,45"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["inv_kappa"] == pytest.approx(
-        kappa.criterion(robot, np.radians([0, -30, -20, 40, 60, 45])).inv_kappa
-    )
-    assert main(["poses", "criterion", "--q-deg", "0,-30,-20,40,160,45"]) == 2
-    assert "joint5 = 160.000 deg" in capsys.readouterr().err
-    assert main(["poses", "optimize", "--out", str(tmp_path), "--seed", "3"]) == 0
-    saved = json.loads((tmp_path / "optimum.json").read_text())
-    assert len(saved["q_deg"]) == 6 and saved["inv_kappa"] == pytest.approx(0.934786, abs=1e-6)

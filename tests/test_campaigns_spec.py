@@ -1,32 +1,14 @@
-"""Campaign schema, cells, seeds and the generated pose sets."""
+"""Campaign schema, cells, seeds and noise scaling."""
 
 import copy
-import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
+from quick_campaign import BASE, ROOT, campaign_data
 
-from vtestbed.campaigns import montecarlo, posesets
 from vtestbed.campaigns.spec import AXES, POSE_SETS, load_campaign, parse_campaign, scaled_noise
-from vtestbed.design import kappa
-from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.errors import ScenarioError
 from vtestbed.world.scan_noise import ScanNoise
-
-ROOT = Path(__file__).resolve().parents[1]
-# the base scenario of the quick campaign (its own copy of 20 tests, stable under others' edits)
-BASE = {
-    k: v
-    for k, v in tomllib.loads((ROOT / "scenarios" / "kr60_sweep_quick.toml").read_text()).items()
-    if k != "campaign"
-}
-
-
-def campaign_data(**table):
-    data = copy.deepcopy(BASE)
-    data["campaign"] = {"trials": 3, "seed": 5, "axes": {"n_tests": [3, 4]}} | table
-    return data
 
 
 @pytest.mark.parametrize(
@@ -138,55 +120,3 @@ def test_noise_scaling_touches_gaussian_and_drift_terms_only():
     assert c.ft_noise_std(c.cells()[1]) == pytest.approx(
         tuple(4 * v for v in c.scenario.force_sensor.noise_std)
     )
-
-
-@pytest.fixture(scope="module")
-def generated():
-    data = campaign_data(axes={"pose_set": ["kappa_regions", "random", "design_optimal"], "n_tests": [3, 4]})
-    data["campaign"]["pose_sets"] = {"pool": 12}
-    c = parse_campaign(data)
-    keys = {c.plan_key(x) for x in c.cells()}
-    return c, posesets.build_plans(c, keys)
-
-
-def test_generated_pose_sets_are_feasible_and_deterministic(generated):
-    c, plans = generated
-    assert set(plans) == {"kappa_regions:4", "random:4", "design_optimal:3", "design_optimal:4"}
-    robot = c.scenario.robot
-    # every test prepares in the truth world (montecarlo.prepare raises otherwise)
-    prepared = montecarlo.prepare(plans["random:4"].scenario(c.scenario))
-    assert len(prepared.tests) == 4
-    # same seed, same sets; a longer nested set starts with the shorter one
-    again = posesets.build_plans(c, ["kappa_regions:3", "random:3"])
-    for name in ("kappa_regions", "random"):
-        assert again[f"{name}:3"].digest == plans[f"{name}:4"].head(3).digest
-    # kappa poses meet the threshold; random poses are inside the limits and the lab box
-    k = kappa.inv_kappa_batch(robot, plans["kappa_regions:4"].q, "wrist")
-    assert np.all(k >= c.pose_sets.threshold)
-    q = plans["random:4"].q
-    assert np.all((q >= robot.lower) & (q <= robot.upper))
-    assert np.all(posesets.lab_constraints(c.pose_sets).ok(robot, q))
-    # JSON round trip is exact
-    plan = plans["design_optimal:4"]
-    back = posesets.TestPlan.from_dict(plan.to_dict())
-    assert np.array_equal(back.q, plan.q) and back.digest == plan.digest
-
-
-def test_design_optimal_beats_the_kappa_rule_on_its_own_criterion(generated):
-    c, plans = generated
-    robot = c.scenario.robot
-    d = {
-        n: posesets.plan_quality(
-            robot, plans[f"design_optimal:{n}"], n, c.scenario.lab, PAPER_TABLE5.stiffness
-        )["d_log_det_rel"]
-        for n in (3, 4)
-    }
-    kappa = posesets.plan_quality(robot, plans["kappa_regions:4"], 4, c.scenario.lab, PAPER_TABLE5.stiffness)[
-        "d_log_det_rel"
-    ]
-    assert d[4] >= kappa and d[4] > d[3]
-    assert plans["design_optimal:4"].notes["criterion_value"] == pytest.approx(d[4], rel=1e-9)
-    # its poses come from the kappa pool (same seeded stream as kappa_regions)
-    pool = posesets.kappa_pool(robot, c.pose_sets, c.pose_set_rng("kappa_regions")).q
-    for q in plans["design_optimal:4"].q:
-        assert np.min(np.abs(pool - q).max(axis=1)) == 0.0

@@ -1,0 +1,43 @@
+"""``vtestbed diagnose DATASET``: detect, name and add what the paper's model misses (researcher side)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def _cmd_diagnose(args) -> int:
+    from ..errors import OutOfRangeError
+    from ..researcher.candidates import CANDIDATE_NAMES
+    from ..researcher.discrepancy import diagnose, markdown
+    from ..robots import load_robot
+
+    names = (
+        CANDIDATE_NAMES if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
+    )
+    if not 0.0 < args.alpha < 1.0:
+        raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
+    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out)
+    if args.json:
+        print(json.dumps(report, indent=1, default=float))
+        return 0
+    from ..dataset import read_setup
+
+    print(markdown(report, load_robot(read_setup(args.dataset).robot).joint_names))
+    if args.out:
+        print(f"wrote {Path(args.out) / 'report.json'}, report.md, gap.png")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "diagnose", help="detect, name and add the effects the paper's model misses (needs repeat scans)"
+    )
+    p.add_argument("dataset", type=Path)
+    p.add_argument("--out", type=Path, help="write report.json, report.md and gap.png here")
+    p.add_argument(
+        "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
+    )
+    p.add_argument("--candidates", help="comma-separated candidate names (default: all)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_diagnose)

@@ -1,0 +1,229 @@
+"""Candidate terms: small parametric extensions of the paper's model, named after the world's effects.
+
+The paper's model predicts a test's block displacement as ``d = A c`` (``A = J diag(J^T F)``,
+compliances ``c`` [rad/(N*m)]). A candidate adds ``B theta``: its parameters ``theta`` (SI, named)
+enter linearly at the current estimate, with columns ``B`` (6 per test) built from the nominal
+model only: the robot description's kinematics and inertias, the setup's sensor mounting, and the
+measured wrenches. Bilinear terms (a misaligned or drifting sensor, a cubic spring) are linearised
+at the baseline compliances; :func:`vtestbed.researcher.diagnose.fit_model` refits them.
+
+Frames: displacements, Jacobians and wrenches in the unloaded block frame (B axes, B origin), as
+:mod:`vtestbed.researcher.measure` builds them. Names match :mod:`vtestbed.world.effects`, but
+this module knows nothing of the world: it runs unchanged on a lab's dataset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ..dataset import DatasetSetup
+from ..errors import UnknownNameError
+from .kinematics import ArmKinematics
+from .measure import TestMeasurement, wrench_at_block
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A model extension: ``columns(context, compliance) -> (6 T, p)`` with named parameters."""
+
+    name: str  # the effect it stands for (vtestbed.world.effects names)
+    label: str  # this instance, e.g. "joint_coupling(5,6)"
+    params: tuple[str, ...]  # parameter names with units
+    columns: Callable
+    bilinear: bool = False  # columns depend on the compliances (refit after an update)
+
+
+@dataclass
+class ModelContext:
+    """What the columns need, computed once per dataset from the nominal model (SI)."""
+
+    measurements: list[TestMeasurement]
+    setup: DatasetSetup
+    kin: ArmKinematics
+
+    def __post_init__(self):
+        self.frames = [self.kin.joint_poses(m.q) for m in self.measurements]
+        self.block = [self.kin.tool_pose(m.q, self.setup.block_in_flange) for m in self.measurements]
+        eye = np.eye(6)
+        self.sensor_to_block = np.column_stack([wrench_at_block(eye[k], self.setup) for k in range(6)])
+        self.wrench_sensor = [np.linalg.solve(self.sensor_to_block, m.wrench) for m in self.measurements]
+
+    @property
+    def n_tests(self) -> int:
+        return len(self.measurements)
+
+    def hinge_column(self, t: int, point: np.ndarray, axis: np.ndarray) -> np.ndarray:
+        """(6,) displacement per unit compliance of a hinge at world ``point`` about world ``axis``."""
+        rot, origin = self.block[t][:3, :3], self.block[t][:3, 3]
+        j = np.concatenate([rot.T @ np.cross(axis, origin - point), rot.T @ axis])
+        return j * (j @ self.measurements[t].wrench)
+
+    def predicted(self, t: int, compliance: np.ndarray, wrench: np.ndarray | None = None) -> np.ndarray:
+        """J C J^T W (6,) at the commanded pose for a block wrench ``wrench`` (default: measured)."""
+        m = self.measurements[t]
+        w = m.wrench if wrench is None else wrench
+        return m.jacobian @ (compliance * (m.jacobian.T @ w))
+
+
+def _link_compliance(link: int) -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 3))
+        for t, frames in enumerate(ctx.frames):
+            start, end = frames[link - 1][:3, 3], frames[link][:3, 3]
+            along = (end - start) / np.linalg.norm(end - start)
+            z = frames[link - 1][:3, 2]
+            out_of_plane = np.cross(along, z) / np.linalg.norm(np.cross(along, z))
+            mid = (start + end) / 2
+            for k, axis in enumerate((z, out_of_plane, along)):
+                out[6 * t : 6 * t + 6, k] = ctx.hinge_column(t, mid, axis)
+        return out
+
+    names = (
+        "compliance_in_plane_rad_per_Nm",
+        "compliance_out_of_plane_rad_per_Nm",
+        "compliance_torsion_rad_per_Nm",
+    )
+    return Candidate("link_compliance", f"link_compliance(link {link})", names, columns)
+
+
+def _base_compliance() -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 3))
+        for t in range(ctx.n_tests):
+            for k, axis in enumerate(np.eye(3)):
+                out[6 * t : 6 * t + 6, k] = ctx.hinge_column(t, np.zeros(3), axis)
+        return out
+
+    names = ("compliance_tilt_x_rad_per_Nm", "compliance_tilt_y_rad_per_Nm", "compliance_twist_z_rad_per_Nm")
+    return Candidate("base_compliance", "base_compliance", names, columns)
+
+
+def _joint_coupling(i: int, j: int) -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 1))
+        for t, m in enumerate(ctx.measurements):
+            ji, jj = m.jacobian[:, i - 1], m.jacobian[:, j - 1]
+            out[6 * t : 6 * t + 6, 0] = ji * (jj @ m.wrench) + jj * (ji @ m.wrench)
+        return out
+
+    return Candidate(
+        "joint_coupling", f"joint_coupling({i},{j})", (f"compliance_{i}{j}_rad_per_Nm",), columns
+    )
+
+
+def _nonlinear_joint(joint: int, gravity) -> Candidate:
+    """tau = k dq + k3 dq^3: the loaded-minus-unloaded deflection changes by -c k3 [(q0+dq)^3 - q0^3]."""
+
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 1))
+        c = compliance[joint - 1]
+        for t, m in enumerate(ctx.measurements):
+            q0 = -c * gravity(m.q)[joint - 1]  # the sag under the arm's weight: K dq = -g(q) [rad]
+            dq = c * (m.jacobian[:, joint - 1] @ m.wrench)
+            out[6 * t : 6 * t + 6, 0] = m.jacobian[:, joint - 1] * (-c * ((q0 + dq) ** 3 - q0**3))
+        return out
+
+    return Candidate(
+        "nonlinear_joint", f"nonlinear_joint({joint})", ("k3_Nm_per_rad3",), columns, bilinear=True
+    )
+
+
+def _gravity_compensator() -> Candidate:
+    """A joint-2 balancer: stiffness k_b(theta2) = kappa * (-sin theta2) added to k2 (its varying part)."""
+
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 1))
+        c2 = compliance[1]
+        for t, m in enumerate(ctx.measurements):
+            j2 = m.jacobian[:, 1]
+            out[6 * t : 6 * t + 6, 0] = j2 * (j2 @ m.wrench) * (-(c2**2) * -np.sin(m.q[1]))
+        return out
+
+    return Candidate(
+        "gravity_compensator", "gravity_compensator", ("kappa_Nm_per_rad",), columns, bilinear=True
+    )
+
+
+def _ft_misalignment() -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 3))
+        for t in range(ctx.n_tests):
+            w = ctx.wrench_sensor[t]
+            for k, e in enumerate(np.eye(3)):
+                rotated = np.concatenate([np.cross(e, w[:3]), np.cross(e, w[3:])])  # d(R w)/d(phi_k)
+                out[6 * t : 6 * t + 6, k] = ctx.predicted(t, compliance, ctx.sensor_to_block @ rotated)
+        return out
+
+    names = ("roll_rad", "pitch_rad", "yaw_rad")
+    return Candidate("ft_misalignment", "ft_misalignment", names, columns, bilinear=True)
+
+
+def _ft_bias_drift() -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 6))
+        for t in range(ctx.n_tests):
+            for k in range(6):
+                out[6 * t : 6 * t + 6, k] = -ctx.predicted(t, compliance, ctx.sensor_to_block[:, k])
+        return out
+
+    names = ("drift_Fx_N", "drift_Fy_N", "drift_Fz_N", "drift_Tx_Nm", "drift_Ty_Nm", "drift_Tz_Nm")
+    return Candidate("ft_bias_drift", "ft_bias_drift", names, columns, bilinear=True)
+
+
+def _scanner_scale() -> Candidate:
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 1))
+        for t in range(ctx.n_tests):
+            out[6 * t : 6 * t + 3, 0] = ctx.predicted(t, compliance)[:3]
+        return out
+
+    return Candidate("scanner_scale", "scanner_scale", ("scale",), columns, bilinear=True)
+
+
+def gravity_torque(kin: ArmKinematics) -> Callable[[np.ndarray], np.ndarray]:
+    """``g(q)`` (n,) [N*m]: the arm's weight torques from the nominal inertias (Pinocchio RNEA)."""
+    zeros = np.zeros(kin.model.nv)
+
+    def g(q):
+        return pin.rnea(kin.model, kin.data, np.asarray(q, dtype=float), zeros, zeros).copy()
+
+    return g
+
+
+CANDIDATE_NAMES = (
+    "link_compliance",
+    "joint_coupling",
+    "nonlinear_joint",
+    "gravity_compensator",
+    "base_compliance",
+    "ft_misalignment",
+    "ft_bias_drift",
+    "scanner_scale",
+)
+COUPLED_PAIRS = ((4, 5), (4, 6), (5, 6), (2, 3))
+NONLINEAR_JOINTS = (2, 3)
+
+
+def candidates(kin: ArmKinematics, names=CANDIDATE_NAMES) -> list[Candidate]:
+    """The candidate terms of ``names`` (each name may give several instances)."""
+    unknown = [n for n in names if n not in CANDIDATE_NAMES]
+    if unknown:
+        raise UnknownNameError("candidate", unknown[0], CANDIDATE_NAMES)
+    g = gravity_torque(kin)
+    out = []
+    for name in names:
+        if name == "link_compliance":
+            out += [_link_compliance(2), _link_compliance(3)]
+        elif name == "joint_coupling":
+            out += [_joint_coupling(i, j) for i, j in COUPLED_PAIRS]
+        elif name == "nonlinear_joint":
+            out += [_nonlinear_joint(j, g) for j in NONLINEAR_JOINTS]
+        else:
+            out.append({"gravity_compensator": _gravity_compensator, "base_compliance": _base_compliance,
+                        "ft_misalignment": _ft_misalignment, "ft_bias_drift": _ft_bias_drift,
+                        "scanner_scale": _scanner_scale}[name]())  # fmt: skip
+    return out

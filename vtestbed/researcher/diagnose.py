@@ -1,0 +1,218 @@
+"""The discrepancy workflow: detect where the model and the measurements disagree, name the
+missing effect, add it, and show the gap shrink. Researcher side: it reads a dataset only.
+
+1. **Detect.** The paper's model is fitted by generalised least squares with the model-free
+   noise floor of the repeat scans (:mod:`.noise_floor`) as the displacement covariance, so its
+   chi^2 (with ``6 T - n`` degrees of freedom) tests the model against the noise, not against
+   itself (FGLS's own reduced chi^2 is 1 by construction).
+2. **Name.** Each candidate term (:mod:`.candidates`) is added in turn; a likelihood-ratio test
+   (``chi2_base - chi2_candidate`` against chi^2 with the candidate's parameter count) at a
+   family-wise error rate ``alpha`` (Bonferroni over the candidates still in play) decides
+   whether it is needed; the significant ones are ranked by BIC; the best is kept and the
+   search repeats until nothing significant remains (so two hidden effects can both be named).
+   A candidate that the stiffnesses already explain (its whitened columns lie in their span)
+   is reported as absorbed, with the joint that absorbs it.
+3. **Add and show.** The chosen terms join the model; validation tests are predicted before and
+   after, as ratios to the noise floor.
+
+Units: SI; displacements in the unloaded block frame [m, rad].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from ..errors import DatasetError, OutOfRangeError
+from .candidates import Candidate, ModelContext
+from .identify import stack
+from .noise_floor import NoiseFloor
+
+ABSORBED_R2 = 0.999  # a candidate whose whitened columns the stiffness columns explain to this is absorbed
+DEFAULT_ALPHA = 0.01
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """The paper's model plus ``terms``, fitted against the noise floor (SI)."""
+
+    terms: tuple[str, ...]
+    compliance: np.ndarray  # (n,) rad/(N*m)
+    theta: dict  # term label -> {parameter: value}
+    theta_std: dict
+    chi2: float
+    dof: int
+    residuals: np.ndarray  # (T, 6) measured - predicted
+    x: np.ndarray = field(repr=False)
+    compliance_std: np.ndarray = field(default=None, repr=False)  # (n,) rad/(N*m), noise floor as known
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        return 1.0 / self.compliance
+
+    @property
+    def p_value(self) -> float:
+        return float(chi2_dist.sf(self.chi2, self.dof))
+
+    @property
+    def stiffness_std(self) -> np.ndarray:
+        """(n,) N*m/rad, first order: std(c) / c^2."""
+        return self.compliance_std / self.compliance**2
+
+    def to_dict(self) -> dict:
+        return {"terms": list(self.terms), "stiffness_Nm_per_rad": self.stiffness.tolist(),
+                "stiffness_std_Nm_per_rad": self.stiffness_std.tolist(),
+                "chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
+                "parameters": self.theta, "parameters_std": self.theta_std}  # fmt: skip
+
+
+class Whitener:
+    """x -> C^-1 x per test, with ``C C^T`` the noise floor's 6x6 covariance."""
+
+    def __init__(self, floor: NoiseFloor):
+        cov = np.asarray(floor.covariance, dtype=float)
+        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+            raise OutOfRangeError(
+                "the noise floor's covariance must be a finite positive definite 6x6 matrix"
+            )
+        self.inv_chol = np.linalg.inv(np.linalg.cholesky(cov))
+
+    def __call__(self, stacked: np.ndarray) -> np.ndarray:
+        shape = stacked.shape
+        blocks = stacked.reshape(-1, 6, *shape[1:])
+        return np.einsum("ij,tj...->ti...", self.inv_chol, blocks).reshape(shape)
+
+
+def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int = 4) -> ModelFit:
+    """Fit the compliances and the terms' parameters by GLS against the noise floor.
+
+    Bilinear terms are relinearised at the updated compliances ``iterations`` times at most.
+    """
+    ms = ctx.measurements
+    a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
+    d = np.concatenate([m.displacement for m in ms])
+    n = a.shape[1]
+    dw = white(d)
+    c = _lstsq(white(a), dw)[0]
+    cols = []
+    for _ in range(iterations if any(t.bilinear for t in terms) else 1):
+        cols = [t.columns(ctx, c) for t in terms]
+        x_mat = np.hstack([a, *cols]) if cols else a
+        x, cov = _lstsq(white(x_mat), dw)
+        c = x[:n]
+    x_mat = np.hstack([a, *cols]) if cols else a
+    residuals = d - x_mat @ x
+    chi2 = float(np.sum(white(residuals) ** 2))
+    theta, theta_std, k = {}, {}, n
+    std = np.sqrt(np.diag(cov))
+    for term, block in zip(terms, cols):
+        p = block.shape[1]
+        theta[term.label] = dict(zip(term.params, x[k : k + p].tolist()))
+        theta_std[term.label] = dict(zip(term.params, std[k : k + p].tolist()))
+        k += p
+    dof = len(d) - len(x)
+    labels = tuple(t.label for t in terms)
+    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n])
+
+
+def _lstsq(xw: np.ndarray, dw: np.ndarray):
+    """Column-scaled least squares; returns the solution and its covariance (whitened units)."""
+    norms = np.linalg.norm(xw, axis=0)
+    norms[norms == 0] = 1.0
+    u, s, vt = np.linalg.svd(xw / norms, full_matrices=False)
+    keep = s > s[0] * 1e-12
+    x = (vt[keep].T @ ((u[:, keep].T @ dw) / s[keep])) / norms
+    cov = ((vt[keep].T / s[keep] ** 2) @ vt[keep]) / np.outer(norms, norms)
+    return x, cov
+
+
+def absorbed_by(ctx: ModelContext, white: Whitener, term: Candidate, compliance, joint_names) -> str | None:
+    """ "absorbed into <joint(s)>" when the stiffnesses' columns explain the term's, else None."""
+    ms = ctx.measurements
+    aw = white(stack([m.jacobian for m in ms], [m.wrench for m in ms]))
+    bw = white(term.columns(ctx, compliance))
+    coef, *_ = np.linalg.lstsq(aw, bw, rcond=None)
+    r2 = 1.0 - np.sum((bw - aw @ coef) ** 2, axis=0) / np.maximum(np.sum(bw**2, axis=0), 1e-300)
+    if np.min(r2) < ABSORBED_R2:
+        return None
+    share = np.abs(coef * np.linalg.norm(aw, axis=0)[:, None]).sum(axis=1)
+    joints = [joint_names[j] for j in np.argsort(share)[::-1] if share[j] > 0.2 * share.max()]
+    return f"absorbed into {', '.join(joints)} (R^2 = {np.min(r2):.5f})"
+
+
+@dataclass(frozen=True)
+class Step:
+    """One round of the forward search: every candidate's test against the current model."""
+
+    base_terms: tuple[str, ...]
+    base_chi2: float
+    tests: list  # dicts: label, lr, df, p_value, bic, significant
+    chosen: str | None
+
+
+def name_effects(
+    ctx: ModelContext,
+    white: Whitener,
+    pool: list[Candidate],
+    alpha: float = DEFAULT_ALPHA,
+    max_terms: int = 3,
+) -> tuple[list[Candidate], list[Step], ModelFit]:
+    """Forward selection by likelihood ratio (Bonferroni at ``alpha``) and BIC; returns the chosen
+    terms, the rounds, and the final fit."""
+    if not 0.0 < alpha < 1.0:
+        raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
+    chosen: list[Candidate] = []
+    steps: list[Step] = []
+    current = fit_model(ctx, white, chosen)
+    n_obs = 6 * ctx.n_tests
+    while len(chosen) < max_terms:
+        remaining = [c for c in pool if c.label not in {t.label for t in chosen}]
+        if not remaining:
+            break
+        rows, best = [], None
+        for cand in remaining:
+            fit = fit_model(ctx, white, [*chosen, cand])
+            df = len(fit.x) - len(current.x)
+            lr = max(current.chi2 - fit.chi2, 0.0)
+            p = float(chi2_dist.sf(lr, df)) if df > 0 else 1.0
+            bic = fit.chi2 + len(fit.x) * np.log(n_obs)
+            sig = p < alpha / len(remaining)
+            rows.append({"label": cand.label, "name": cand.name, "lr": lr, "df": df, "p_value": p,
+                         "bic": float(bic), "significant": bool(sig)})  # fmt: skip
+            if sig and (best is None or bic < best[0]):
+                best = (bic, cand, fit)
+        steps.append(
+            Step(tuple(t.label for t in chosen), current.chi2, rows, best[1].label if best else None)
+        )
+        if best is None:
+            break
+        chosen.append(best[1])
+        current = best[2]
+    return chosen, steps, current
+
+
+def require_floor(floor: NoiseFloor | None, root) -> NoiseFloor:
+    if floor is None:
+        raise DatasetError(
+            f"{root}: the dataset has no repeat scans (repeats.csv), so there is no model-free noise floor "
+            "to test the model against. Record r >= 2 further scans of the unloaded block at each test's "
+            "pose without touching anything (a simulated scenario: [scanner] repeats = 3). Without them "
+            "only the model's own residual structure can be shown (vtestbed identify)."
+        )
+    return floor
+
+
+def validation_gap(ctx: ModelContext, white: Whitener, fit: ModelFit, terms: list[Candidate]) -> dict:
+    """Validation tests' prediction error as a ratio to the noise floor (1 = as good as the noise)."""
+    if ctx.n_tests == 0:
+        return {}
+    cols = [t.columns(ctx, fit.compliance) for t in terms]
+    ms = ctx.measurements
+    a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
+    x_mat = np.hstack([a, *cols]) if cols else a
+    residual = np.concatenate([m.displacement for m in ms]) - x_mat @ fit.x
+    per_test = np.sum(white(residual).reshape(-1, 6) ** 2, axis=1) / 6.0
+    return {"ratio_to_floor": float(np.sqrt(np.mean(per_test))), "per_test": np.sqrt(per_test).tolist(),
+            "test_ids": [m.test_id for m in ms]}  # fmt: skip

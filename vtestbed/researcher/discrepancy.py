@@ -1,0 +1,212 @@
+"""``diagnose``: the discrepancy workflow on one dataset, start to end, and its report.
+
+Reads a dataset (with repeat scans for the noise floor, and validation tests if it has them),
+never the truth. Detects (chi^2 of the paper's model against the noise floor), names the missing
+effects (:func:`.diagnose.name_effects`), adds them, and compares the validation prediction error
+before and after. Writes ``report.json``, ``report.md``, ``gap.png`` and ``model.json`` (the named
+terms, for ``vtestbed identify --model``) when given a folder.
+Units: SI; stiffness in N*m/rad.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..files import write_json_atomic, write_text_atomic
+from ..plotting import pyplot, save_figure
+from ..robots import load_robot
+from .candidates import CANDIDATE_NAMES, ModelContext, candidates
+from .diagnose import (
+    DEFAULT_ALPHA,
+    Whitener,
+    absorbed_by,
+    fit_model,
+    name_effects,
+    require_floor,
+    validation_gap,
+)
+from .kinematics import ArmKinematics
+from .measure import load_measurements
+from .noise_floor import estimate_noise_floor
+
+COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def diagnose(root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None) -> dict:
+    """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``)."""
+    setup, measurements = load_measurements(root)
+    floor = require_floor(estimate_noise_floor(root, measurements), root)
+    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    ident = [m for m in measurements if m.group == "identification"]
+    valid = [m for m in measurements if m.group == "validation"]
+    ctx, ctx_val = ModelContext(ident, setup, kin), ModelContext(valid, setup, kin)
+    white = Whitener(floor)
+    pool = candidates(kin, names)
+    base = fit_model(ctx, white, [])
+    chosen, steps, final = name_effects(ctx, white, pool, alpha)
+    names_chosen = {c.label for c in chosen}
+    absorbed = {}
+    for cand in pool:
+        if cand.label not in names_chosen:
+            note = absorbed_by(ctx, white, cand, final.compliance, kin.robot.joint_names)
+            if note:
+                absorbed[cand.label] = note
+    std = floor.component_std
+    report = {
+        "dataset": str(root),
+        "alpha": alpha,
+        "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples)},
+        "detect": {
+            "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
+            "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
+            "per_test": _per_test(white, base.residuals),
+            "model_rejected": bool(base.p_value < alpha),
+        },
+        "named": [c.label for c in chosen],
+        "absorbed": absorbed,
+        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "chosen": s.chosen, "tests": s.tests}
+                   for s in steps],
+        "baseline": base.to_dict(),
+        "model": final.to_dict(),
+        "validation": {"before": validation_gap(ctx_val, white, base, []),
+                       "after": validation_gap(ctx_val, white, final, chosen)},
+        "identification_fit": {"before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
+                               "after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
+                               "per_test_after": _per_test(white, final.residuals),
+                               "test_ids": [m.test_id for m in ident]},
+    }  # fmt: skip
+    if out is not None:
+        write_report(report, Path(out), kin.robot.joint_names)
+        write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot))
+    return report
+
+
+def _per_test(white: Whitener, residuals: np.ndarray) -> list:
+    """RMS whitened residual of each test (1 = as large as the noise floor)."""
+    return np.sqrt(np.sum(white(residuals.reshape(-1)).reshape(-1, 6) ** 2, axis=1) / 6).tolist()
+
+
+def markdown(report: dict, joint_names) -> str:
+    det, val = report["detect"], report["validation"]
+    lines = [
+        f"# Discrepancy report: {report['dataset']}",
+        "",
+        f"Noise floor (repeat scans, {report['noise_floor']['n_samples']} samples): "
+        + ", ".join(f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, report["noise_floor"]["component_std"]))
+        + " (um, urad)",
+        "",
+        f"**Detect.** The paper's model against the noise floor: chi^2 = {det['chi2']:.1f} with {det['dof']} "
+        f"degrees of freedom, p = {det['p_value']:.3g}: "
+        + ("the model is rejected." if det["model_rejected"] else "consistent with the noise."),
+        "",
+        "**Name.** "
+        + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
+        + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by BIC).",
+    ]
+    for label, note in report["absorbed"].items():
+        lines.append(f"- `{label}`: {note}")
+    lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
+    for name, k0, k1 in zip(
+        joint_names, report["baseline"]["stiffness_Nm_per_rad"], report["model"]["stiffness_Nm_per_rad"]
+    ):
+        lines.append(f"| {name} | {k0 * 1e3:.4e} | {k1 * 1e3:.4e} |")
+    for label, params in report["model"]["parameters"].items():
+        stds = report["model"]["parameters_std"][label]
+        lines.append(
+            f"- `{label}`: " + ", ".join(f"{p} = {v:.4g} +- {stds[p]:.2g}" for p, v in params.items())
+        )
+    fit = report["identification_fit"]
+    lines += [
+        "",
+        f"**Show.** Identification residual / noise floor: {fit['before']:.2f} before, {fit['after']:.2f} after.",
+    ]
+    if val["before"]:
+        lines.append(f"Validation prediction error / noise floor: {val['before']['ratio_to_floor']:.2f} before, "
+                     f"{val['after']['ratio_to_floor']:.2f} after.")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def plot_gap(report: dict, path: Path) -> Path:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    fit, val = report["identification_fit"], report["validation"]
+    before, after, ids = report["detect"]["per_test"], fit["per_test_after"], list(fit["test_ids"])
+    x = np.arange(len(before))
+    ax.bar(x - 0.2, before, 0.4, color="#9dc3e6", label="identification, paper's model")
+    ax.bar(x + 0.2, after, 0.4, color="#1f4e79", label="identification, with the named terms")
+    if val["before"]:
+        xv = np.arange(len(before), len(before) + len(val["before"]["per_test"]))
+        ax.bar(
+            xv - 0.2, val["before"]["per_test"], 0.4, color="#f4b183", label="validation (predicted), before"
+        )
+        ax.bar(
+            xv + 0.2, val["after"]["per_test"], 0.4, color="#c00000", label="validation (predicted), after"
+        )
+        ids += list(val["before"]["test_ids"])
+    ax.axhline(1.0, color="k", lw=0.8, label="noise floor")
+    ax.set_xticks(np.arange(len(ids)), ids, rotation=90, fontsize=7)
+    ax.set_ylabel("RMS whitened residual / floor")
+    ax.set_title("named: " + (", ".join(report["named"]) or "nothing"), fontsize=9)
+    ax.legend(fontsize=7)
+    return save_figure(fig, path, dpi=90)
+
+
+def write_report(report: dict, out: Path, joint_names) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "report.json", json.loads(json.dumps(report, default=float)))
+    write_text_atomic(out / "report.md", markdown(report, joint_names))
+    plot_gap(report, out / "gap.png")
+
+
+MODEL_FORMAT = "vtestbed-model/1"
+
+
+def model_file(report: dict, robot: str) -> dict:
+    """The identified model as a file records it: the robot and the named terms."""
+    return {"format": MODEL_FORMAT, "robot": robot, "terms": list(report["named"]),
+            "parameters": report["model"]["parameters"]}  # fmt: skip
+
+
+def read_model_terms(path, robot, kin) -> list:
+    """The candidate terms a model file names, checked against the dataset's robot."""
+    from ..errors import DatasetError
+    from ..files import read_json
+
+    data = read_json(path, "model file", DatasetError)
+    if data.get("format") != MODEL_FORMAT:
+        raise DatasetError(f"{path}: format must be {MODEL_FORMAT!r}, got {data.get('format')!r}")
+    if data.get("robot") != robot:
+        raise DatasetError(
+            f"{path}: robot = {data.get('robot')!r} does not match the dataset's robot {robot!r}"
+        )
+    pool = {c.label: c for c in candidates(kin)}
+    terms = data.get("terms")
+    if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
+        raise DatasetError(f"{path}: terms must be a list of candidate labels")
+    unknown = [t for t in terms if t not in pool]
+    if unknown:
+        raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
+    return [pool[t] for t in terms]
+
+
+def identify_with_model(root, model_path) -> dict:
+    """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans)."""
+    setup, measurements = load_measurements(root)
+    floor = require_floor(estimate_noise_floor(root, measurements), root)
+    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    terms = read_model_terms(model_path, setup.robot, kin)
+    ident = [m for m in measurements if m.group == "identification"]
+    valid = [m for m in measurements if m.group == "validation"]
+    ctx, white = ModelContext(ident, setup, kin), Whitener(floor)
+    if 6 * len(ident) <= kin.robot.dof + sum(len(t.params) for t in terms):
+        from ..errors import DatasetError
+
+        raise DatasetError(
+            f"{root}: {len(ident)} tests are too few for the model's {len(terms)} terms and the stiffness"
+        )
+    fit = fit_model(ctx, white, terms)
+    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
+            "validation": validation_gap(ModelContext(valid, setup, kin), white, fit, terms)}  # fmt: skip

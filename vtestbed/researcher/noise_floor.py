@@ -1,0 +1,300 @@
+"""A model-free noise floor: the displacement-noise covariance from repeat scans of a static block.
+
+Why: the default FGLS estimator takes its weights from its own residuals, so its reduced chi^2
+is 1 by construction and nothing can be detected against it. A lab gets an independent noise
+floor by scanning the unloaded block ``r`` more times without touching anything (the dataset's
+``repeats.csv``). Nothing moves between those scans, so the difference of any two of them is
+pure measurement noise, and it has exactly the noise of a measured displacement (which is also
+the difference of two independent scans): its covariance estimates the displacement-noise
+covariance with no model at all.
+
+Frames and units: every scan is reduced by the researcher's own pipeline
+(:func:`vtestbed.researcher.measure.nominal_block_frame`, :func:`~.measure.fit_scan`): each
+repeat exactly as the test's unloaded scan, from the kinematic nominal pose. A scan's deviation
+is ``e_i = displacement_in_block_frame(F_0, F_i)`` with ``F_0`` the test's unloaded frame:
+components x, y, z [m] and rx, ry, rz [rad] in the unloaded block frame, those of a measured
+displacement.
+
+How the repeats are paired (the estimator): a test with ``n = r + 1`` scans (the unloaded scan
+and ``r`` repeats) gives the displacements ``d_jk = e_k - e_j`` of all ``n (n - 1) / 2`` pairs.
+Pairs that share a scan are correlated: the star ``d_0k`` (each repeat against the unloaded
+scan) has correlation 1/2 between any two members, so for Gaussian noise its variance estimate
+is worth at most 4 independent pairs per test however many repeats are taken; disjoint pairs
+alone are independent but use only ``floor(n / 2)`` of the ``r`` degrees of freedom. Averaging
+``d d^T`` over all pairs is exact algebra for twice the within-test sample covariance of the
+``e_i`` (``sum_{j<k} d_jk d_jk^T = n sum_i (e_i - mean e)(e_i - mean e)^T``), the
+minimum-variance unbiased estimate for Gaussian noise, with ``r`` degrees of freedom per test.
+The tests are pooled weighted by their degrees of freedom; ``n_samples = sum_t r_t`` is the
+effective number of independent displacement samples (one repeat per test is one pair).
+
+The mean: the pairs' displacements are not mean-subtracted. Two scans of a static block are
+exchangeable, so ``d_jk`` and ``d_kj = -d_jk`` have the same distribution and the mean is zero
+by construction; any systematic error of the fit that is the same in every scan of a geometry
+cancels in the difference. Subtracting a sample mean of the displacements would spend degrees
+of freedom on a quantity known to be zero. (Within a test the pairing does remove the mean of
+the ``e_i``, the unknown true frame: that is the one degree of freedom each test loses.)
+
+What it covers: the scanner's noise (per-point noise, dropouts, outliers, per-scan drift)
+through the cloud fit, averaged over the tests with repeats (the noise differs between poses:
+by up to about +-20 % per component between the paper's tests). It does not see the F/T sensor's
+noise (a relative error of order 1e-4 of the displacement here), nor noise that only appears
+when the robot moves between scans (a real lab's backlash, re-settling).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..dataset import DatasetSetup, TestRecord, read_repeats, read_setup, read_tests
+from ..errors import OutOfRangeError, ScanError, VtestbedError
+from ..ply import read_ply
+from ..robots import load_robot
+from ..transforms import displacement_in_block_frame
+from .kinematics import ArmKinematics
+from .measure import TestMeasurement, fit_scan, nominal_block_frame
+
+__all__ = [
+    "COMPONENTS",
+    "NoiseFloor",
+    "estimate_noise_floor",
+    "noise_floor_from_frames",
+    "scan_deviations",
+    "scan_frames",
+]
+
+COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseFloor:
+    """The displacement-noise covariance estimated from repeat scans (block frame, SI).
+
+    Attributes
+    ----------
+    covariance : (6, 6) array
+        Covariance of a measured displacement's noise, components x, y, z [m], rx, ry, rz [rad]
+        in the unloaded block frame, pooled over the tests with repeats.
+    n_samples : int
+        Degrees of freedom: the number of independent displacement samples it is worth
+        (``sum_t r_t`` over the tests, ``r_t`` repeats each).
+    n_tests : int
+        Tests with at least one repeat.
+    test_ids : tuple of str
+        Those tests.
+    """
+
+    covariance: np.ndarray
+    n_samples: int
+    n_tests: int
+    test_ids: tuple[str, ...] = ()
+
+    @property
+    def component_std(self) -> np.ndarray:
+        """(6,) standard deviation per component [m, m, m, rad, rad, rad]."""
+        return np.sqrt(np.diag(self.covariance))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """(6, 6) correlation matrix (a component with zero std has zero correlation, 1 on the diagonal)."""
+        std = self.component_std
+        outer = np.outer(std, std)
+        corr = np.divide(self.covariance, outer, out=np.zeros((6, 6)), where=outer > 0)
+        np.fill_diagonal(corr, 1.0)
+        return corr
+
+    @property
+    def relative_std_uncertainty(self) -> float:
+        """Approximate relative standard error of each ``component_std``: ``1 / sqrt(2 n_samples)``.
+
+        Gaussian noise and tests of equal noise; tests of different noise levels make it larger.
+        """
+        return float(1.0 / np.sqrt(2.0 * self.n_samples))
+
+    def chi2(self, residuals) -> float:
+        """Sum over tests of ``r_t^T Sigma^-1 r_t`` for displacement residuals measured - predicted.
+
+        Parameters
+        ----------
+        residuals : array (T, 6) or (6 T,)
+            Per test x, y, z [m], rx, ry, rz [rad] in the block frame (as
+            ``IdentificationResult.residuals``).
+
+        Raises
+        ------
+        OutOfRangeError
+            A residual array that is not 6 per test, or a singular floor (a perfect scanner).
+        """
+        res = np.asarray(residuals, dtype=float)
+        if res.size == 0 or res.size % 6:
+            raise OutOfRangeError(f"residuals must have 6 components per test, got shape {res.shape}")
+        res = res.reshape(-1, 6)
+        std = self.component_std
+        if np.any(std <= 0):
+            raise OutOfRangeError(
+                "the noise floor is singular (zero std in "
+                f"{', '.join(c for c, s in zip(COMPONENTS, std) if s <= 0)}): a perfect scanner has no chi^2"
+            )
+        # whiten in the correlation's eigenbasis, scaled per component (m and rad differ by 1e0..1e3)
+        corr_inv = np.linalg.inv(self.correlation)
+        white = res / std
+        return float(np.einsum("ti,ij,tj->", white, corr_inv, white))
+
+    def reduced_chi2(self, residuals, n_parameters: int) -> float:
+        """``chi2(residuals) / (residuals.size - n_parameters)``: about 1 when model and floor agree.
+
+        Against an estimated floor (``n_samples = nu`` degrees of freedom) its expectation under
+        a right model is about ``nu / (nu - 7)`` (the mean of an inverse Wishart matrix in 6
+        dimensions: 1.13 at nu = 60, 1.04 at 200), and it scatters by at least
+        ``sqrt(2 / dof)`` (relative). On the paper scenario (20 tests, dof 114): 1.11 +- 0.15 at
+        r = 3 repeats, 1.06 +- 0.15 at r = 10 (``benchmarks/bench_noise_floor.py``).
+        """
+        res = np.asarray(residuals, dtype=float)
+        dof = res.size - int(n_parameters)
+        if dof <= 0:
+            raise OutOfRangeError(
+                f"n_parameters = {n_parameters} leaves no degree of freedom in {res.size} residuals"
+            )
+        return self.chi2(res) / dof
+
+    def as_dict(self) -> dict:
+        return {
+            "covariance": self.covariance.tolist(),
+            "component_std": self.component_std.tolist(),
+            "n_samples": self.n_samples,
+            "n_tests": self.n_tests,
+            "test_ids": list(self.test_ids),
+        }
+
+    def summary(self) -> str:
+        """One line: per-component std in um and urad, and the sample count."""
+        std = self.component_std * 1e6
+        return (
+            f"noise floor from repeat scans: std x y z {std[0]:.2f} {std[1]:.2f} {std[2]:.2f} um, "
+            f"rx ry rz {std[3]:.2f} {std[4]:.2f} {std[5]:.2f} urad ({self.n_samples} samples from "
+            f"{self.n_tests} tests, each std +-{self.relative_std_uncertainty * 100:.0f} %)"
+        )
+
+
+def scan_frames(
+    record: TestRecord,
+    cloud_unloaded: np.ndarray | None,
+    repeat_clouds: Sequence[np.ndarray],
+    setup: DatasetSetup,
+    kin: ArmKinematics,
+    frame_unloaded: np.ndarray | None = None,
+    repeat_numbers: Sequence[int] | None = None,
+) -> list[np.ndarray]:
+    """The fitted block frames (4, 4) of one test's unloaded scan and its repeats (scanner frame).
+
+    Every scan of the unloaded block, the test's own and each repeat, is fitted exactly as
+    :func:`~.measure.measure_arrays` fits the unloaded scan: from the kinematic nominal pose
+    (so identical clouds give bitwise identical frames). ``frame_unloaded`` (e.g. a
+    ``TestMeasurement.frame_unloaded``, the same numbers) saves fitting the unloaded scan again;
+    ``cloud_unloaded`` may then be None. ``repeat_numbers`` (default 1, 2, ...) only name the
+    repeats in errors.
+    """
+    numbers = list(repeat_numbers) if repeat_numbers is not None else range(1, len(repeat_clouds) + 1)
+    _, nominal = nominal_block_frame(record, setup, kin)
+    if frame_unloaded is None:
+        frame_unloaded = fit_scan(cloud_unloaded, nominal, setup, f"test {record.test_id}, unloaded cloud")
+    frames = [np.asarray(frame_unloaded, dtype=float)]
+    for k, points in zip(numbers, repeat_clouds):
+        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, repeat {k} cloud"))
+    return frames
+
+
+def scan_deviations(frames: Sequence[np.ndarray]) -> np.ndarray:
+    """(n, 6) ``displacement_in_block_frame(F_0, F_i)`` of each frame from the first [m, rad]."""
+    return np.array([displacement_in_block_frame(frames[0], f) for f in frames])
+
+
+def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) -> NoiseFloor:
+    """Pool the repeat scans of several tests into one :class:`NoiseFloor` (all pairs per test).
+
+    Parameters
+    ----------
+    frames_by_test : mapping test_id -> sequence of (4, 4) arrays
+        Per test, the fitted frames of the unloaded scan and its repeats (any one fixed frame).
+        Tests with a single scan are skipped.
+
+    Raises
+    ------
+    OutOfRangeError
+        No test has two scans.
+    """
+    total, dof, ids = np.zeros((6, 6)), 0, []
+    for tid, frames in frames_by_test.items():
+        n = len(frames)
+        if n < 2:
+            continue
+        e = scan_deviations(frames)
+        j, k = np.triu_indices(n, 1)
+        d = e[k] - e[j]  # every pair's displacement: exactly zero for identical scans
+        total += (2.0 / n) * (d.T @ d)  # = 2 (n - 1) x the within-test sample covariance
+        dof += n - 1
+        ids.append(tid)
+    if dof == 0:
+        raise OutOfRangeError("no test has a repeat scan: a noise floor needs at least two scans of one test")
+    return NoiseFloor(total / dof, dof, len(ids), tuple(ids))
+
+
+def _read_cloud(path: Path, label: str) -> np.ndarray:
+    try:
+        return read_ply(path)
+    except VtestbedError as exc:
+        raise ScanError(f"{label} {path}: {exc}") from None
+
+
+def estimate_noise_floor(
+    root: str | Path,
+    measurements: Sequence[TestMeasurement] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> NoiseFloor | None:
+    """The noise floor of a dataset from its repeat scans, or None when it has no ``repeats.csv``.
+
+    Parameters
+    ----------
+    root : str or Path
+        The dataset folder.
+    measurements : sequence of TestMeasurement, optional
+        This dataset's reduced tests (``load_measurements``): their unloaded frames are reused
+        instead of fitting the unloaded clouds again (the same numbers).
+    progress : callable(done, total), optional
+        Called after each test.
+
+    Raises
+    ------
+    DatasetError, ScanError
+        A malformed repeats.csv (file, line, field) or a cloud the pipeline cannot fit.
+    """
+    root = Path(root)
+    repeats = read_repeats(root)
+    if not repeats:
+        return None
+    setup = read_setup(root)
+    records = {
+        r.test_id: r
+        for r in read_tests(
+            root, check_files=False, sensor_range=setup.sensor_range, sensor_name=setup.sensor_name
+        )
+    }
+    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    known = {m.test_id: m.frame_unloaded for m in measurements or ()}
+    by_test: dict[str, list] = {}
+    for rep in sorted(repeats, key=lambda r: r.repeat):
+        by_test.setdefault(rep.test_id, []).append(rep)
+    frames = {}
+    for done, (tid, reps) in enumerate(by_test.items(), start=1):
+        record = records[tid]
+        clouds = [_read_cloud(r.cloud, f"test {tid}, repeat {r.repeat} cloud") for r in reps]
+        cloud0 = None if tid in known else _read_cloud(record.cloud_unloaded, f"test {tid}, unloaded cloud")
+        frames[tid] = scan_frames(
+            record, cloud0, clouds, setup, kin, known.get(tid), [r.repeat for r in reps]
+        )
+        if progress:
+            progress(done, len(by_test))
+    return noise_floor_from_frames(frames)

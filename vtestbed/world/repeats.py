@@ -1,0 +1,86 @@
+"""Repeat scans of the unloaded block: the truth world's side of a model-free noise floor.
+
+A lab measures its own noise by scanning the unloaded block again, ``r`` more times, without
+touching anything: the block does not move between the scans and the scanner stands where it
+stood, so any difference between two of these scans is measurement noise. The virtual lab does
+the same on the unloaded ray-cast geometry of each test (:class:`ScanGeometry`, scanner frame,
+metres): every repeat is one more call of ``ScanNoise.apply`` (its own per-point noise,
+dropouts, outliers and its own rigid drift), exactly as a test's own scans are drawn.
+
+Seeds: the repeats of test ``index`` of ``group`` draw from
+``SeedSequence(seed, spawn_key=(group key, index, 1))`` (:func:`repeat_rng`), a stream separate
+from the test's own (:func:`vtestbed.world.physics.test_rng`, spawn key ``(group key, index)``),
+so taking repeats changes no number of the test itself, and repeat ``k`` is the same whatever
+the number of repeats asked for (the stream is consumed in order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .physics import GROUP_KEYS
+from .scan_noise import ScanGeometry, ScanNoise
+
+__all__ = ["REPEAT_STREAM", "draw_repeat_scans", "repeat_rng"]
+
+REPEAT_STREAM = 1  # last spawn-key entry of the repeat scans' stream
+
+
+def repeat_rng(seed: int, group: str, index: int) -> np.random.Generator:
+    """The generator of the repeat scans of test ``index`` of ``group`` under scenario seed ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        The scenario's seed.
+    group : str
+        ``"identification"`` or ``"validation"``.
+    index : int
+        The test's index in its group (0-based).
+
+    Returns
+    -------
+    numpy.random.Generator
+        Independent of :func:`vtestbed.world.physics.test_rng` for every seed, group and index.
+    """
+    key = (GROUP_KEYS[group], index, REPEAT_STREAM)
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+def draw_repeat_scans(
+    hits_unloaded: ScanGeometry,
+    noise: ScanNoise | None,
+    rng: np.random.Generator,
+    repeats: int,
+    effects: tuple = (),
+) -> list[np.ndarray]:
+    """``repeats`` further noisy scans of one test's unloaded block, same scanner pose.
+
+    Parameters
+    ----------
+    hits_unloaded : ScanGeometry
+        The noise-free ray-cast hits of the unloaded block (scanner frame, m).
+    noise : ScanNoise or None
+        The scanner's errors; None is a perfect scanner, whose repeats are copies of the hits.
+    rng : numpy.random.Generator
+        The repeat stream (:func:`repeat_rng`), consumed in order: one ``noise.apply`` per scan,
+        each with its own drift draw.
+    repeats : int
+        Number of repeat scans (0 gives an empty list).
+    effects : tuple of WorldEffect
+        The world's hidden effects: those that change the measurement chain (e.g. a scanner
+        scale error) act on every repeat as on the test's own scans (they draw nothing).
+
+    Returns
+    -------
+    list of (M_k, 3) arrays
+        The repeat clouds [m] in the scanner frame, as a scan file stores them.
+    """
+    chain = tuple(e for e in effects if e.changes_measurement and not e.is_null)
+    scans = []
+    for _ in range(repeats):
+        points = noise.apply(hits_unloaded, rng) if noise is not None else hits_unloaded.points_m.copy()
+        for effect in chain:
+            points = effect.scan_points(points)
+        scans.append(points)
+    return scans
