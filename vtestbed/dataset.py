@@ -178,28 +178,36 @@ def write_setup(root: str | Path, setup: DatasetSetup) -> None:
     (root / SETUP_FILE).write_text(json.dumps(setup.to_json(), indent=2))
 
 
-class TestWriter:
-    """Appends finished tests to tests.csv (flushed per row, so an interruption keeps them)."""
+class _RowWriter:
+    """Appends rows to one CSV file of the dataset, flushed per row, so an interruption keeps them.
 
-    __test__ = False  # a dataset class, not a pytest test class
+    Subclasses give the file name, the header, the rows already on disk and a row's key.
+    """
+
+    FILE, HEADER = "", ()
 
     def __init__(self, root: str | Path):
         self.root = Path(root)
-        self.path = self.root / TESTS_FILE
-        self.done = (
-            {r.test_id for r in read_tests(self.root, check_files=False)} if self.path.exists() else set()
-        )
+        self.path = self.root / self.FILE
         new = not self.path.exists()
+        self.done = set() if new else self._done_on_disk()
         self._file = self.path.open("a", newline="")
         self._csv = csv.writer(self._file)
         if new:
-            self._csv.writerow(COLUMNS)
+            self._csv.writerow(self.HEADER)
             self._file.flush()
 
-    def append(self, record: TestRecord) -> None:
+    def _done_on_disk(self) -> set:
+        raise NotImplementedError
+
+    @staticmethod
+    def _key(record):
+        raise NotImplementedError
+
+    def append(self, record) -> None:
         self._csv.writerow(record.row(self.root))
         self._file.flush()
-        self.done.add(record.test_id)
+        self.done.add(self._key(record))
 
     def close(self) -> None:
         self._file.close()
@@ -209,6 +217,20 @@ class TestWriter:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class TestWriter(_RowWriter):
+    """Appends finished tests to tests.csv (flushed per row, so an interruption keeps them)."""
+
+    __test__ = False  # a dataset class, not a pytest test class
+    FILE, HEADER = TESTS_FILE, COLUMNS
+
+    def _done_on_disk(self) -> set:
+        return {r.test_id for r in read_tests(self.root, check_files=False)}
+
+    @staticmethod
+    def _key(record):
+        return record.test_id
 
 
 def read_tests(
@@ -359,36 +381,18 @@ def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecor
     return _read_repeat_rows(root, test_ids, check_files)
 
 
-class RepeatWriter:
+class RepeatWriter(_RowWriter):
     """Appends repeat scans to repeats.csv (flushed per row), like :class:`TestWriter`.
 
     ``done`` holds the (test_id, repeat) pairs already recorded. A simulation writes a test's
     repeats before its tests.csv row, so the file may name tests that tests.csv does not list yet.
     """
 
-    def __init__(self, root: str | Path):
-        self.root = Path(root)
-        self.path = self.root / REPEATS_FILE
-        new = not self.path.exists()
-        self.done = (
-            set() if new else {(r.test_id, r.repeat) for r in _read_repeat_rows(self.root, None, False)}
-        )
-        self._file = self.path.open("a", newline="")
-        self._csv = csv.writer(self._file)
-        if new:
-            self._csv.writerow(REPEAT_COLUMNS)
-            self._file.flush()
+    FILE, HEADER = REPEATS_FILE, REPEAT_COLUMNS
 
-    def append(self, record: RepeatRecord) -> None:
-        self._csv.writerow(record.row(self.root))
-        self._file.flush()
-        self.done.add((record.test_id, record.repeat))
+    def _done_on_disk(self) -> set:
+        return {(r.test_id, r.repeat) for r in _read_repeat_rows(self.root, None, False)}
 
-    def close(self) -> None:
-        self._file.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
+    @staticmethod
+    def _key(record):
+        return (record.test_id, record.repeat)
