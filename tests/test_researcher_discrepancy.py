@@ -49,7 +49,8 @@ def world_measurements(scenario, effects=(), gravity=True, n=None):
         out.append(
             Measurement(f"T{i + 1:03d}", "identification", q, wrench_at_block(w1 - w0, setup),
                         displacement_in_block_frame(s0.block_pose, s1.block_pose),
-                        kin.jacobian(q, setup.block_in_flange, frame="tool"), s0.block_pose, s1.block_pose)
+                        kin.jacobian(q, setup.block_in_flange, frame="tool"), s0.block_pose, s1.block_pose,
+                        (w0, w1))
         )  # fmt: skip
     return setup, kin, out
 
@@ -110,6 +111,21 @@ def test_detection_and_naming_are_calibrated_on_a_clean_world(paper):
     assert abs(np.mean(chi2s) - dof) < 3 * np.sqrt(2 * dof / draws)
     assert chi2_dist.sf(max(chi2s), dof) > 1e-4
     assert alarms <= 6  # binomial(40, 0.05): P(X > 6) < 0.01
+
+
+def test_exact_statics_remove_the_clean_worlds_model_bias(truth):
+    """Noise-free, nothing hidden, gravity on (kr60_ideal's tests): the paper's model is biased by
+    gravity's geometric stiffness and the load-dependent Jacobian; the exact statics are not."""
+    from vtestbed.researcher.statics import ExactStatics
+
+    ideal = load_scenario(ROOT / "scenarios" / "kr60_ideal.toml")
+    setup, kin, ms = world_measurements(ideal)
+    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=100, n_tests=20))
+    paper = fit_model(ModelContext(ms, setup, kin), white, [])
+    exact = fit_model(ModelContext(ms, setup, kin, ExactStatics(kin, setup)), white, [])
+    assert np.max(np.abs(paper.stiffness / truth.stiffness - 1)) > 1e-3  # 0.1 % and more
+    np.testing.assert_array_less(np.abs(exact.stiffness / truth.stiffness - 1), 1e-4)  # below 0.01 %
+    assert exact.chi2 < 1e-2 * paper.chi2
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ def _cmd_diagnose(args) -> int:
     )
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
-    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out)
+    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics)
     if args.json:
         print(json.dumps(report, indent=1, default=float))
         return 0
@@ -39,5 +39,7 @@ def register(sub) -> None:
         "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
     )
     p.add_argument("--candidates", help="comma-separated candidate names (default: all)")
+    p.add_argument("--statics", default="exact", choices=("exact", "paper"),
+                   help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_diagnose)

@@ -10,7 +10,8 @@ The chain: :func:`fit_block_frame` (three planes of the block in a cloud) ->
 :func:`identify` (``delta_d = A c`` by least squares, with an honest covariance) ->
 :func:`convergence` / :func:`validation` (the paper's Figures 10 and 11). The discrepancy
 workflow: :func:`estimate_noise_floor` (repeat scans) and :func:`diagnose` (detect, name, add
-the effects the paper's model misses; candidate terms in :mod:`.candidates`). Units: SI.
+the effects the paper's model misses; candidate terms in :mod:`.candidates`, the clean world's
+exact statics in :mod:`.statics`). Units: SI.
 """
 
 from .candidates import Candidate, candidates
@@ -29,11 +30,13 @@ from .measure import (
 )
 from .noise_floor import NoiseFloor, estimate_noise_floor
 from .report import convergence, plot_convergence, plot_validation, validation
+from .statics import ExactStatics
 
 __all__ = [
     "ArmKinematics",
     "BlockFrame",
     "Candidate",
+    "ExactStatics",
     "NoiseFloor",
     "FitParams",
     "IdentificationResult",

@@ -44,6 +44,7 @@ class ModelContext:
     measurements: list[TestMeasurement]
     setup: DatasetSetup
     kin: ArmKinematics
+    statics: object = None  # an ExactStatics: fit the paper's model plus the clean world's statics
 
     def __post_init__(self):
         self.frames = [self.kin.joint_poses(m.q) for m in self.measurements]

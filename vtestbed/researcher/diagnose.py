@@ -88,22 +88,26 @@ class Whitener:
 def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int = 4) -> ModelFit:
     """Fit the compliances and the terms' parameters by GLS against the noise floor.
 
-    Bilinear terms are relinearised at the updated compliances ``iterations`` times at most.
+    Bilinear terms, and the clean world's exact statics when ``ctx.statics`` is set (its gap to the
+    paper's model is subtracted from the measurements), are re-evaluated at the updated
+    compliances ``iterations`` times at most.
     """
     ms = ctx.measurements
     a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
     d = np.concatenate([m.displacement for m in ms])
     n = a.shape[1]
-    dw = white(d)
-    c = _lstsq(white(a), dw)[0]
-    cols = []
-    for _ in range(iterations if any(t.bilinear for t in terms) else 1):
+    c = _lstsq(white(a), white(d))[0]
+    cols, gap = [], np.zeros_like(d)
+    repeat = any(t.bilinear for t in terms) or ctx.statics is not None
+    for _ in range(iterations if repeat else 1):
+        if ctx.statics is not None:
+            gap = ctx.statics.gap(ms, c)
         cols = [t.columns(ctx, c) for t in terms]
         x_mat = np.hstack([a, *cols]) if cols else a
-        x, cov = _lstsq(white(x_mat), dw)
+        x, cov = _lstsq(white(x_mat), white(d - gap))
         c = x[:n]
     x_mat = np.hstack([a, *cols]) if cols else a
-    residuals = d - x_mat @ x
+    residuals = d - gap - x_mat @ x
     chi2 = float(np.sum(white(residuals) ** 2))
     theta, theta_std, k = {}, {}, n
     std = np.sqrt(np.diag(cov))
@@ -212,7 +216,8 @@ def validation_gap(ctx: ModelContext, white: Whitener, fit: ModelFit, terms: lis
     ms = ctx.measurements
     a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
     x_mat = np.hstack([a, *cols]) if cols else a
-    residual = np.concatenate([m.displacement for m in ms]) - x_mat @ fit.x
+    gap = ctx.statics.gap(ms, fit.compliance) if ctx.statics is not None else 0.0
+    residual = np.concatenate([m.displacement for m in ms]) - gap - x_mat @ fit.x
     per_test = np.sum(white(residual).reshape(-1, 6) ** 2, axis=1) / 6.0
     return {"ratio_to_floor": float(np.sqrt(np.mean(per_test))), "per_test": np.sqrt(per_test).tolist(),
             "test_ids": [m.test_id for m in ms]}  # fmt: skip

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DatasetError, UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
@@ -31,18 +32,38 @@ from .diagnose import (
 from .kinematics import ArmKinematics
 from .measure import load_measurements
 from .noise_floor import estimate_noise_floor
+from .statics import ExactStatics
 
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def diagnose(root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None) -> dict:
-    """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``)."""
+STATICS = ("exact", "paper")
+
+
+def _statics(kind: str, kin, setup):
+    """The base model's statics: ``exact`` (the clean world's, :mod:`.statics`) or the paper's."""
+    if kind not in STATICS:
+        raise UnknownNameError("statics", kind, STATICS)
+    return ExactStatics(kin, setup) if kind == "exact" else None
+
+
+def diagnose(
+    root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None, statics: str = "exact"
+) -> dict:
+    """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``).
+
+    ``statics="exact"`` (default) takes the paper's model with the clean world's exact statics
+    (gravity at the sagged pose, load-dependent Jacobian, exact kinematics: :mod:`.statics`) as
+    the baseline, so that candidates compete only for what every lab does not share;
+    ``"paper"`` takes the paper's linear model as it is.
+    """
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
-    ctx, ctx_val = ModelContext(ident, setup, kin), ModelContext(valid, setup, kin)
+    exact = _statics(statics, kin, setup)
+    ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
     pool = candidates(kin, names)
     base = fit_model(ctx, white, [])
@@ -58,6 +79,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None
     report = {
         "dataset": str(root),
         "alpha": alpha,
+        "statics": statics,
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples)},
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
@@ -80,7 +102,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None
     }  # fmt: skip
     if out is not None:
         write_report(report, Path(out), kin.robot.joint_names)
-        write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot))
+        write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot, statics))
     return report
 
 
@@ -98,7 +120,7 @@ def markdown(report: dict, joint_names) -> str:
         + ", ".join(f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, report["noise_floor"]["component_std"]))
         + " (um, urad)",
         "",
-        f"**Detect.** The paper's model against the noise floor: chi^2 = {det['chi2']:.1f} with {det['dof']} "
+        f"**Detect.** The paper's model ({report['statics']} statics) against the noise floor: chi^2 = {det['chi2']:.1f} with {det['dof']} "
         f"degrees of freedom, p = {det['p_value']:.3g}: "
         + ("the model is rejected." if det["model_rejected"] else "consistent with the noise."),
         "",
@@ -109,10 +131,15 @@ def markdown(report: dict, joint_names) -> str:
     for label, note in report["absorbed"].items():
         lines.append(f"- `{label}`: {note}")
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
-    for name, k0, k1 in zip(
-        joint_names, report["baseline"]["stiffness_Nm_per_rad"], report["model"]["stiffness_Nm_per_rad"]
-    ):
-        lines.append(f"| {name} | {k0 * 1e3:.4e} | {k1 * 1e3:.4e} |")
+    before, after = report["baseline"], report["model"]
+    rows = zip(
+        joint_names,
+        before["stiffness_Nm_per_rad"],
+        after["stiffness_Nm_per_rad"],
+        after["stiffness_std_Nm_per_rad"],
+    )
+    for name, k0, k1, s1 in rows:
+        lines.append(f"| {name} | {k0 * 1e3:.4e} | {k1 * 1e3:.4e} +- {s1 * 1e3:.2e} |")
     for label, params in report["model"]["parameters"].items():
         stds = report["model"]["parameters_std"][label]
         lines.append(
@@ -164,15 +191,14 @@ def write_report(report: dict, out: Path, joint_names) -> None:
 MODEL_FORMAT = "vtestbed-model/1"
 
 
-def model_file(report: dict, robot: str) -> dict:
-    """The identified model as a file records it: the robot and the named terms."""
-    return {"format": MODEL_FORMAT, "robot": robot, "terms": list(report["named"]),
+def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
+    """The identified model as a file records it: the robot, its statics and the named terms."""
+    return {"format": MODEL_FORMAT, "robot": robot, "statics": statics, "terms": list(report["named"]),
             "parameters": report["model"]["parameters"]}  # fmt: skip
 
 
 def read_model_terms(path, robot, kin) -> list:
     """The candidate terms a model file names, checked against the dataset's robot."""
-    from ..errors import DatasetError
     from ..files import read_json
 
     data = read_json(path, "model file", DatasetError)
@@ -198,15 +224,16 @@ def identify_with_model(root, model_path) -> dict:
     floor = require_floor(estimate_noise_floor(root, measurements), root)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     terms = read_model_terms(model_path, setup.robot, kin)
+    from ..files import read_json
+
+    exact = _statics(read_json(model_path, "model file", DatasetError).get("statics", "exact"), kin, setup)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
-    ctx, white = ModelContext(ident, setup, kin), Whitener(floor)
+    ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
     if 6 * len(ident) <= kin.robot.dof + sum(len(t.params) for t in terms):
-        from ..errors import DatasetError
-
         raise DatasetError(
             f"{root}: {len(ident)} tests are too few for the model's {len(terms)} terms and the stiffness"
         )
     fit = fit_model(ctx, white, terms)
     return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
-            "validation": validation_gap(ModelContext(valid, setup, kin), white, fit, terms)}  # fmt: skip
+            "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip

@@ -43,6 +43,7 @@ class TestMeasurement:
     jacobian: np.ndarray  # (6, n) at B, B axes, commanded pose
     frame_unloaded: np.ndarray  # (4, 4) fitted block frame in the scanner frame
     frame_loaded: np.ndarray  # (4, 4)
+    readings: tuple | None = None  # (unloaded, loaded) F/T readings (6,) [N, N*m], sensor frame
 
 
 def wrench_at_block(wrench_sensor: np.ndarray, setup: DatasetSetup) -> np.ndarray:
@@ -116,6 +117,7 @@ def measure_arrays(
         jacobian=kin.jacobian(q, setup.block_in_flange, frame="tool"),
         frame_unloaded=frames[0],
         frame_loaded=frames[1],
+        readings=(np.array(record.wrench_unloaded, dtype=float), np.array(record.wrench_loaded, dtype=float)),
     )
 
 
