@@ -153,8 +153,13 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert fit["before"] > 1.5 and fit["after"] < 1.15
     val = report["validation"]
     assert val["after"]["ratio_to_floor"] < val["before"]["ratio_to_floor"]
-    for name in ("report.json", "report.md", "gap.png"):
+    for name in ("report.json", "report.md", "gap.png", "patterns.png", "model.json"):
         assert (tmp_path / "diag" / name).stat().st_size > 100
+    # the paper's tests never move A1 (and keep A6 at 45 deg): no pattern can be read against them
+    patterns = report["detect"]["patterns"]
+    assert patterns["q1_deg"]["note"] == patterns["q6_deg"]["note"] == "constant over the tests"
+    q2 = np.array(report["detect"]["features"]["q2_deg"])
+    assert np.all((q2 > -130) & (q2 < 40))  # DH theta2 = A2 inside the datasheet limits
 
 
 def test_bad_inputs_are_named(tmp_path, capsys):

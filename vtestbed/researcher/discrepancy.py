@@ -85,6 +85,8 @@ def diagnose(
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
             "per_test": _per_test(white, base.residuals),
+            "features": (features := pose_features(ctx)),
+            "patterns": residual_patterns(_per_test(white, base.residuals), features),
             "model_rejected": bool(base.p_value < alpha),
         },
         "named": [c.label for c in chosen],
@@ -106,6 +108,37 @@ def diagnose(
     return report
 
 
+def pose_features(ctx: ModelContext) -> dict:
+    """Per test: joint angles [deg], the load's joint torques J^T dW [N*m], the force's elevation and
+    azimuth in the base frame [deg]: what a residual pattern can be read against."""
+    feats = {f"q{j + 1}_deg": [] for j in range(ctx.kin.robot.dof)}
+    feats |= {f"tau{j + 1}_Nm": [] for j in range(ctx.kin.robot.dof)}
+    feats |= {"force_elevation_deg": [], "force_azimuth_deg": []}
+    for t, m in enumerate(ctx.measurements):
+        tau = m.jacobian.T @ m.wrench
+        force = ctx.block[t][:3, :3] @ m.wrench[:3]  # base axes
+        for j in range(len(m.q)):
+            feats[f"q{j + 1}_deg"].append(float(np.degrees(m.q[j])))
+            feats[f"tau{j + 1}_Nm"].append(float(tau[j]))
+        feats["force_elevation_deg"].append(float(np.degrees(np.arcsin(force[2] / np.linalg.norm(force)))))
+        feats["force_azimuth_deg"].append(float(np.degrees(np.arctan2(force[1], force[0]))))
+    return feats
+
+
+def residual_patterns(per_test: list, features: dict) -> dict:
+    """Spearman correlation (and its p-value) of the per-test residual with each pose feature."""
+    from scipy.stats import spearmanr
+
+    out = {}
+    for name, values in features.items():
+        if len(set(np.round(values, 9))) < 3:  # a feature that does not vary (A1 = 0 everywhere)
+            out[name] = {"rho": None, "p_value": None, "note": "constant over the tests"}
+            continue
+        rho, p = spearmanr(values, per_test)
+        out[name] = {"rho": float(rho), "p_value": float(p)}
+    return out
+
+
 def _per_test(white: Whitener, residuals: np.ndarray) -> list:
     """RMS whitened residual of each test (1 = as large as the noise floor)."""
     return np.sqrt(np.sum(white(residuals.reshape(-1)).reshape(-1, 6) ** 2, axis=1) / 6).tolist()
@@ -123,6 +156,15 @@ def markdown(report: dict, joint_names) -> str:
         f"**Detect.** The paper's model ({report['statics']} statics) against the noise floor: chi^2 = {det['chi2']:.1f} with {det['dof']} "
         f"degrees of freedom, p = {det['p_value']:.3g}: "
         + ("the model is rejected." if det["model_rejected"] else "consistent with the noise."),
+        "Strongest residual patterns (Spearman rho of the per-test residual with a pose feature): "
+        + ", ".join(
+            f"{n} {v['rho']:+.2f} (p {v['p_value']:.2g})"
+            for n, v in sorted(
+                ((n, v) for n, v in det["patterns"].items() if v["rho"] is not None),
+                key=lambda kv: kv[1]["p_value"],
+            )[:3]
+        )
+        + ".",
         "",
         "**Name.** "
         + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
@@ -181,11 +223,36 @@ def plot_gap(report: dict, path: Path) -> Path:
     return save_figure(fig, path, dpi=90)
 
 
+def plot_patterns(report: dict, path: Path) -> Path:
+    """The per-test residual of the baseline (and with the named terms) against the pose features."""
+    plt = pyplot()
+    feats = report["detect"]["features"]
+    names = [n for n in feats if report["detect"]["patterns"][n]["rho"] is not None]
+    cols = 4
+    rows = max(1, -(-len(names) // cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(11, 2.4 * rows), squeeze=False)
+    before, after = report["detect"]["per_test"], report["identification_fit"]["per_test_after"]
+    for ax, name in zip(axes.flat, names):
+        pat = report["detect"]["patterns"][name]
+        ax.plot(feats[name], before, "o", ms=4, color="#9dc3e6", label="paper's model")
+        ax.plot(feats[name], after, "o", ms=3, color="#1f4e79", label="with the named terms")
+        ax.axhline(1.0, color="k", lw=0.6)
+        ax.set_xlabel(name, fontsize=8)
+        ax.set_title(f"rho = {pat['rho']:+.2f} (p = {pat['p_value']:.2g})", fontsize=8)
+    for ax in list(axes.flat)[len(names) :]:
+        ax.axis("off")
+    axes.flat[0].set_ylabel("RMS residual / floor")
+    axes.flat[0].legend(fontsize=6)
+    fig.suptitle("Where the model disagrees: per-test residual against the pose and the load", fontsize=9)
+    return save_figure(fig, path, dpi=80)
+
+
 def write_report(report: dict, out: Path, joint_names) -> None:
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "report.json", json.loads(json.dumps(report, default=float)))
     write_text_atomic(out / "report.md", markdown(report, joint_names))
     plot_gap(report, out / "gap.png")
+    plot_patterns(report, out / "patterns.png")
 
 
 MODEL_FORMAT = "vtestbed-model/1"
