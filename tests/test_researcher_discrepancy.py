@@ -25,7 +25,7 @@ from vtestbed.researcher.measure import wrench_at_block
 from vtestbed.researcher.noise_floor import NoiseFloor
 from vtestbed.scenario import load_scenario
 from vtestbed.transforms import displacement_in_block_frame
-from vtestbed.world.effects import FtMisalignment, JointCoupling, LinkCompliance
+from vtestbed.world.effects import BlockOffset, FtMisalignment, JointCoupling, LinkCompliance
 from vtestbed.world.rig import Rig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +69,7 @@ def paper():
             "link_compliance(link 2)",
         ),
         (FtMisalignment(roll_pitch_yaw_deg=(0.3, -0.2, 1.5)), "ft_misalignment"),
+        (BlockOffset(translation_mm=(1.0, -0.5, 0.8), rotation_deg=(0.5, -0.3, 1.0)), "block_offset"),
     ],
 )
 def test_a_candidate_fits_the_worlds_effect_to_the_noise(paper, truth, effect, label):
@@ -86,6 +87,9 @@ def test_a_candidate_fits_the_worlds_effect_to_the_noise(paper, truth, effect, l
     if isinstance(effect, JointCoupling):  # compliance c56 = -k56 c5 c6 to first order
         c56 = fit.theta[label]["compliance_56_rad_per_Nm"]
         assert c56 == pytest.approx(-2000.0 / (truth.stiffness[4] * truth.stiffness[5]), rel=0.05)
+    if isinstance(effect, BlockOffset):  # the rotation shows through v (um), the shift only through w x dt
+        theta = np.array(list(fit.theta[label].values()))
+        np.testing.assert_allclose(theta[3:], np.radians([0.5, -0.3, 1.0]), atol=2e-3)
     if isinstance(effect, FtMisalignment):
         # a small-angle term for an Euler rotation of 1.5 deg: second-order terms leave about 0.03 deg
         np.testing.assert_allclose(list(fit.theta[label].values()), np.radians([0.3, -0.2, 1.5]), atol=1e-3)
@@ -144,6 +148,8 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     report = diagnose(hidden_dataset, out=tmp_path / "diag")
     assert report["detect"]["model_rejected"] and report["detect"]["p_value"] < 1e-10
     assert report["named"][0] == "link_compliance(link 2)"
+    first = report["rounds"][0]  # the separation from the runner-up is reported, and here it is clear
+    assert first["runner_up"] is not None and first["delta_bic"] > 10 and report["confusable"] == []
     before = np.array(report["baseline"]["stiffness_Nm_per_rad"])
     after = np.array(report["model"]["stiffness_Nm_per_rad"])
     assert abs(before[0] / truth.stiffness[0] - 1) > 0.2  # joint 1 was 30 % off with the paper's model

@@ -185,6 +185,27 @@ def _scanner_scale() -> Candidate:
     return Candidate("scanner_scale", "scanner_scale", ("scale",), columns, bilinear=True)
 
 
+def _block_offset() -> Candidate:
+    """The block sits at ``B' = B (I + [dr]x, dt)`` on the sensor: the scans measure the twist at B'.
+
+    To first order the measured ``[v'; w'] = [v + w x dt - dr x v; w - dr x w]`` with ``[v; w]``
+    the model's displacement of the nominal block frame.
+    """
+
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        out = np.zeros((6 * ctx.n_tests, 6))
+        for t in range(ctx.n_tests):
+            d = ctx.predicted(t, compliance)
+            v, w = d[:3], d[3:]
+            for k, e in enumerate(np.eye(3)):
+                out[6 * t : 6 * t + 3, k] = np.cross(w, e)
+                out[6 * t : 6 * t + 6, 3 + k] = np.concatenate([-np.cross(e, v), -np.cross(e, w)])
+        return out
+
+    names = ("dx_m", "dy_m", "dz_m", "rx_rad", "ry_rad", "rz_rad")
+    return Candidate("block_offset", "block_offset", names, columns, bilinear=True)
+
+
 def gravity_torque(kin: ArmKinematics) -> Callable[[np.ndarray], np.ndarray]:
     """``g(q)`` (n,) [N*m]: the arm's weight torques from the nominal inertias (Pinocchio RNEA)."""
     zeros = np.zeros(kin.model.nv)
@@ -203,6 +224,7 @@ CANDIDATE_NAMES = (
     "base_compliance",
     "ft_misalignment",
     "ft_bias_drift",
+    "block_offset",
     "scanner_scale",
 )
 COUPLED_PAIRS = ((4, 5), (4, 6), (5, 6), (2, 3))
@@ -226,5 +248,5 @@ def candidates(kin: ArmKinematics, names=CANDIDATE_NAMES) -> list[Candidate]:
         else:
             out.append({"gravity_compensator": _gravity_compensator, "base_compliance": _base_compliance,
                         "ft_misalignment": _ft_misalignment, "ft_bias_drift": _ft_bias_drift,
-                        "scanner_scale": _scanner_scale}[name]())  # fmt: skip
+                        "block_offset": _block_offset, "scanner_scale": _scanner_scale}[name]())  # fmt: skip
     return out

@@ -30,6 +30,7 @@ from .candidates import Candidate, ModelContext
 from .identify import stack
 from .noise_floor import NoiseFloor
 
+CONFUSABLE_BIC = 10.0  # a runner-up within this BIC of the chosen term could be the effect instead
 ABSORBED_R2 = 0.999  # a candidate whose whitened columns the stiffness columns explain to this is absorbed
 DEFAULT_ALPHA = 0.01
 
@@ -154,6 +155,8 @@ class Step:
     base_chi2: float
     tests: list  # dicts: label, lr, df, p_value, bic, significant
     chosen: str | None
+    runner_up: str | None = None  # the best other significant candidate
+    delta_bic: float | None = None  # its BIC minus the chosen one's (< CONFUSABLE_BIC: confusable)
 
 
 def name_effects(
@@ -187,9 +190,14 @@ def name_effects(
                          "bic": float(bic), "significant": bool(sig)})  # fmt: skip
             if sig and (best is None or bic < best[0]):
                 best = (bic, cand, fit)
+        runner = None
+        if best is not None:
+            others = [r for r in rows if r["significant"] and r["label"] != best[1].label]
+            runner = min(others, key=lambda r: r["bic"]) if others else None
         steps.append(
-            Step(tuple(t.label for t in chosen), current.chi2, rows, best[1].label if best else None)
-        )
+            Step(tuple(t.label for t in chosen), current.chi2, rows, best[1].label if best else None,
+                 runner["label"] if runner else None, float(runner["bic"] - best[0]) if runner else None)
+        )  # fmt: skip
         if best is None:
             break
         chosen.append(best[1])

@@ -21,6 +21,7 @@ from ..plotting import pyplot, save_figure
 from ..robots import load_robot
 from .candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .diagnose import (
+    CONFUSABLE_BIC,
     DEFAULT_ALPHA,
     Whitener,
     absorbed_by,
@@ -91,7 +92,12 @@ def diagnose(
         },
         "named": [c.label for c in chosen],
         "absorbed": absorbed,
-        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "chosen": s.chosen, "tests": s.tests}
+        "confusable": [
+            {"chosen": s.chosen, "runner_up": s.runner_up, "delta_bic": s.delta_bic}
+            for s in steps if s.chosen and s.delta_bic is not None and s.delta_bic < CONFUSABLE_BIC
+        ],
+        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "chosen": s.chosen,
+                    "runner_up": s.runner_up, "delta_bic": s.delta_bic, "tests": s.tests}
                    for s in steps],
         "baseline": base.to_dict(),
         "model": final.to_dict(),
@@ -172,6 +178,9 @@ def markdown(report: dict, joint_names) -> str:
     ]
     for label, note in report["absorbed"].items():
         lines.append(f"- `{label}`: {note}")
+    for c in report["confusable"]:
+        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC only {c['delta_bic']:.1f} apart): "
+                     "more varied tests would separate them")  # fmt: skip
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(
