@@ -150,7 +150,7 @@ def test_malformed_tests_name_the_file_line_and_field(dataset):
     _edit_tests(dataset, lambda rows: rows[2].update({"q3_deg": "ninety"}))
     with pytest.raises(
         DatasetError,
-        match=rf"{where} line 4 \(test 'T002'\): pose, wrench and scanner columns must be numbers",
+        match=rf"{where} line 4 \(test 'T002'\): q3_deg must be a number .*got 'ninety'",
     ):
         read_tests(dataset)
     _edit_tests(dataset, lambda rows: rows[2].update({"q3_deg": "nan"}))

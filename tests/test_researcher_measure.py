@@ -22,6 +22,7 @@ from vtestbed.researcher.measure import (
     load_measurements,
     measure_arrays,
     measure_test,
+    motionless_tests,
     predict_displacement,
     wrench_at_block,
 )
@@ -171,3 +172,29 @@ def test_missing_clouds_and_empty_datasets_are_named(tmp_path, lab, robot):
                       np.eye(4), cloud, cloud)  # fmt: skip
     with pytest.raises(JointLimitError, match=r"test T004 pose: joint2 = 40\.000 deg .*\[-135\.0, 35\.0\]"):
         measure_test(bad_pose, _setup(lab), kin)
+
+
+def test_a_block_that_did_not_move_under_load_is_flagged_by_test_id(robot, lab):
+    tests = _synthetic(robot, lab, 8)  # exact model displacements: k = Table 5
+    clean = identify_measurements(tests, joint_names=robot.joint_names)
+    assert clean.warnings == ()
+    zero = Measurement(**{**tests[2].__dict__, "displacement": np.zeros(6)})  # the same scan twice
+    tiny = Measurement(**{**tests[5].__dict__, "displacement": tests[5].displacement * 0.01})
+    just = Measurement(
+        **{**tests[6].__dict__, "displacement": tests[6].displacement * 0.2}
+    )  # small, possible
+    with pytest.warns(UserWarning, match=r"tests T2, T5: the block barely moved"):
+        res = identify_measurements([*tests[:2], zero, *tests[3:5], tiny, just, tests[7]])
+    assert res.warnings[-1].startswith("tests T2, T5: the block barely moved under the load")
+    assert "below 5% of the fitted model's" in res.warnings[-1]
+    assert motionless_tests(tests, 1.0 / K_TABLE5) == []
+
+
+def test_the_same_cloud_as_unloaded_and_loaded_is_a_motionless_test(measured, robot, lab):
+    rig, phys, m = measured
+    record = Record("T009", "identification", np.degrees(phys.unloaded.q_cmd), phys.unloaded.sensor_wrench,
+                    phys.loaded.sensor_wrench, phys.scanner.pose_world, Path(), Path())  # fmt: skip
+    kin = ArmKinematics(robot, lab.block_in_flange)
+    same = measure_arrays(record, phys.hits_unloaded.points_m, phys.hits_unloaded.points_m, _setup(lab), kin)
+    assert np.linalg.norm(same.displacement[:3]) < 1e-9 * np.linalg.norm(m.displacement[:3])
+    assert motionless_tests([same, m], 1.0 / K_TABLE5) == ["T009"]

@@ -23,20 +23,32 @@ __all__ = ["PAPER_FIRST_N", "compare", "error_ranges", "read_truth", "table5", "
 
 
 def read_truth(root: str | Path) -> dict | None:
-    """The truth file of a simulated dataset folder, or None when there is none (lab data)."""
+    """The truth file of a simulated dataset folder, or None when there is none (lab data).
+
+    A corrupt or wrong-shaped file is a DatasetError naming the file and the field: the true
+    stiffness must be positive finite numbers (one per joint), ``tests`` a table of tests.
+    """
     path = Path(root) / TRUTH_FILE
     if not path.exists():
         return None
-    return read_json(path, "truth file", DatasetError)
+    truth = read_json(path, "truth file", DatasetError)
+    values = truth.get("stiffness_true_Nm_per_rad")
+    dof = len(values) if isinstance(values, list) else 0
+    true_stiffness(truth, max(dof, 1), path)
+    if not isinstance(truth.get("tests", {}), dict):
+        raise DatasetError(
+            f"{path}: tests must be a table of the simulated tests by id, got {truth['tests']!r}"
+        )
+    return truth
 
 
 def true_stiffness(truth: dict, dof: int, source: str | Path = TRUTH_FILE) -> np.ndarray:
     """(dof,) true joint stiffness [N*m/rad] from a truth mapping, or a DatasetError naming the field."""
     values = truth.get("stiffness_true_Nm_per_rad")
-    try:
-        k = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        k = np.array([])
+    numbers = isinstance(values, list) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in values
+    )
+    k = np.asarray(values, dtype=float) if numbers else np.array([])
     if k.shape != (dof,) or not np.all(np.isfinite(k)) or not np.all(k > 0):
         raise DatasetError(
             f"{source}: stiffness_true_Nm_per_rad must be {dof} positive numbers, got {values!r}"

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import dataset_checks as checks
 from .errors import DatasetError, SensorOverloadError
 from .files import read_json
 from .lab import WRENCH_AXES, ForceSensorSpec
@@ -128,18 +129,8 @@ def scanner_pose_as_recorded(pose: np.ndarray) -> np.ndarray:
     return homogeneous(matrix_from_rotation_vector(rotation_vector(pose[:3, :3])), pose[:3, 3])
 
 
-def _matrix(value, path: Path, name: str) -> np.ndarray:
-    m = np.asarray(value, dtype=float)
-    if (
-        m.shape != (4, 4)
-        or not np.allclose(m[3], [0, 0, 0, 1])
-        or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)
-    ):
-        raise DatasetError(f"{path}: {name} must be a 4x4 rigid transform, got {value!r}")
-    return m
-
-
 def read_setup(root: str | Path) -> DatasetSetup:
+    """setup.json, each field checked (:mod:`vtestbed.dataset_checks`), or a DatasetError naming it."""
     root = Path(root)
     path = root / SETUP_FILE
     data = read_json(path, "dataset setup file", DatasetError)
@@ -157,17 +148,15 @@ def read_setup(root: str | Path) -> DatasetSetup:
         raise DatasetError(
             f"{path}: angle_convention must be 'dh' or 'controller', got {data['angle_convention']!r}"
         )
-    rng = data["force_sensor"].get("range_N_Nm")
-    if not isinstance(rng, list) or len(rng) != 6:
-        raise DatasetError(f"{path}: force_sensor.range_N_Nm must be 6 numbers (Fx..Tz)")
+    sensor_name, sensor_range = checks.force_sensor(data["force_sensor"], path)
     return DatasetSetup(
-        robot=data["robot"],
+        robot=checks.string(data["robot"], path, "robot"),
         angle_convention=data["angle_convention"],
-        block_in_flange=_matrix(data["block_in_flange"], path, "block_in_flange"),
-        sensor_in_flange=_matrix(data["sensor_in_flange"], path, "sensor_in_flange"),
-        block_edge=float(data["block_edge_m"]),
-        sensor_name=str(data["force_sensor"].get("name", "force sensor")),
-        sensor_range=tuple(float(v) for v in rng),
+        block_in_flange=checks.rigid_transform(data["block_in_flange"], path, "block_in_flange"),
+        sensor_in_flange=checks.rigid_transform(data["sensor_in_flange"], path, "sensor_in_flange"),
+        block_edge=checks.number(data["block_edge_m"], path, "block_edge_m", *checks.BLOCK_EDGE_RANGE_M, "m"),
+        sensor_name=sensor_name,
+        sensor_range=sensor_range,
         notes=str(data.get("notes", "")),
     )
 
@@ -239,24 +228,16 @@ def read_tests(
     """Read tests.csv; with ``check_files`` every referenced cloud must exist."""
     root = Path(root)
     path = root / TESTS_FILE
-    if not path.is_file():
-        raise DatasetError(f"tests file {path} is missing")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise DatasetError(f"{path}: columns missing: {', '.join(missing)}")
-        rows = list(reader)
+    rows = checks.read_csv(path, COLUMNS, "tests file")
     records = []
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         where = f"{path} line {line} (test {row.get('test_id')!r})"
-        try:
-            q = np.array([float(row[c]) for c in pose_columns()])
-            wu = np.array([float(row[c]) for c in wrench_columns("unloaded")])
-            wl = np.array([float(row[c]) for c in wrench_columns("loaded")])
-            sc = np.array([float(row[c]) for c in SCANNER_COLUMNS])
-        except (TypeError, ValueError):
-            raise DatasetError(f"{where}: pose, wrench and scanner columns must be numbers") from None
+        if not row["test_id"].strip():
+            raise DatasetError(f"{where}: test_id must be a non-empty name (e.g. T001)")
+        q = checks.row_numbers(row, pose_columns(), where)
+        wu = checks.row_numbers(row, wrench_columns("unloaded"), where)
+        wl = checks.row_numbers(row, wrench_columns("loaded"), where)
+        sc = checks.row_numbers(row, SCANNER_COLUMNS, where)
         if row["group"] not in GROUPS:
             raise DatasetError(f"{where}: group must be one of {', '.join(GROUPS)}, got {row['group']!r}")
         if sensor_range is not None:
@@ -266,7 +247,11 @@ def read_tests(
                     spec.check(w, f"{where}: {label} wrench")
                 except SensorOverloadError as exc:
                     raise DatasetError(str(exc)) from None
-        clouds = (root / row["cloud_unloaded"], root / row["cloud_loaded"])
+        tid = row["test_id"]
+        clouds = tuple(
+            checks.cloud_path(root, row[f"cloud_{k}"], where, f"cloud_{k}", f"{CLOUD_DIR}/{tid}_{k}.ply")
+            for k in ("unloaded", "loaded")
+        )
         if check_files:
             for c in clouds:
                 if not c.is_file():
@@ -275,8 +260,6 @@ def read_tests(
                         f"{where}: point cloud {c} is missing ({len(rows)} tests need {2 * len(rows)} clouds, "
                         f"{n_ply} found in {root / CLOUD_DIR})"
                     )
-        if not np.all(np.isfinite(np.concatenate([q, wu, wl, sc]))):
-            raise DatasetError(f"{where}: pose, wrench and scanner columns must be finite numbers")
         scanner_pose = homogeneous(matrix_from_rotation_vector(sc[3:]), sc[:3])
         records.append(TestRecord(row["test_id"], row["group"], q, wu, wl, scanner_pose, *clouds))
     ids = [r.test_id for r in records]
@@ -318,17 +301,9 @@ def repeat_cloud_path(root: str | Path, test_id: str, repeat: int) -> Path:
 def _read_repeat_rows(root: Path, test_ids, check_files: bool) -> list[RepeatRecord]:
     """repeats.csv as records; ``test_ids`` None skips the check against tests.csv."""
     path = root / REPEATS_FILE
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        missing = [c for c in REPEAT_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise DatasetError(
-                f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(REPEAT_COLUMNS)})"
-            )
-        rows = list(reader)
-    base = root.resolve()
+    rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
     records, first_line = [], {}
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         tid = row.get("test_id") or ""
         where = f"{path} line {line} (test {tid!r})"
         if test_ids is not None and tid not in test_ids:
@@ -345,13 +320,7 @@ def _read_repeat_rows(root: Path, test_ids, check_files: bool) -> list[RepeatRec
                 f"{where}: repeat {repeat} of test {tid!r} is listed twice (first on line {first_line[tid, repeat]})"
             )
         first_line[tid, repeat] = line
-        rel = (row.get("cloud") or "").strip()
-        cloud = root / rel
-        if not rel or not cloud.resolve().is_relative_to(base):
-            raise DatasetError(
-                f"{where}: cloud {rel!r} must be a path inside the dataset folder {root}, relative to it "
-                f"(e.g. {CLOUD_DIR}/{tid}_repeat{repeat}.ply)"
-            )
+        cloud = checks.cloud_path(root, row["cloud"], where, "cloud", f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply")
         if check_files and not cloud.is_file():
             raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
         records.append(RepeatRecord(tid, repeat, cloud))

@@ -37,7 +37,7 @@ from .dataset import (
     write_setup,
 )
 from .errors import DatasetError
-from .files import read_json, write_json_atomic
+from .files import folder_lock, write_json_atomic
 from .lab import LabSetup
 from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
@@ -98,7 +98,7 @@ def _remove_dataset(out: Path) -> None:
 def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = False) -> dict:
     truth_path = out / TRUTH_FILE
     if truth_path.exists():
-        truth = read_json(truth_path, "truth file", DatasetError)
+        truth = comparison.read_truth(out)
         if truth.get("scenario_fingerprint") != scenario.fingerprint and replace_stale:
             _remove_dataset(out)
             return _start_truth(out, scenario, rig)
@@ -107,6 +107,7 @@ def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = 
                 f"{out} holds a dataset of another scenario (fingerprint {truth.get('scenario_fingerprint')} "
                 f"!= {scenario.fingerprint}); choose a new output folder"
             )
+        truth.setdefault("tests", {})
         return truth
     return {
         "scenario": scenario.name,
@@ -140,87 +141,94 @@ def simulate(
     out = Path(out)
     timings = timings or Timings()
     lab = scenario.lab
-    rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
     out.mkdir(parents=True, exist_ok=True)
-    truth = _start_truth(out, scenario, rig, replace_stale)
-    repeats = scenario.scanner.repeats
-    truth["repeats"] = repeats
-    write_setup(out, dataset_setup(scenario, lab))
-    noise = scenario.scanner.noise_model
-    sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
-    placement = scenario.scanner.placement
-    jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
-    jobs += [("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)]
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    with folder_lock(out, "dataset folder", DatasetError):  # one writer at a time
+        rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
+        truth = _start_truth(out, scenario, rig, replace_stale)
+        repeats = scenario.scanner.repeats
+        truth["repeats"] = repeats
+        write_setup(out, dataset_setup(scenario, lab))
+        noise = scenario.scanner.noise_model
+        sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
+        placement = scenario.scanner.placement
+        jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
+        jobs += [
+            ("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)
+        ]
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=len(jobs), desc="simulate", unit="test")
-    with TestWriter(out) as writer, RepeatWriter(out) if repeats else nullcontext() as repeat_writer:
-        for group, i, q, load in jobs:
-            tid = test_id(group, i)
-            todo = [k for k in range(1, repeats + 1) if (tid, k) not in repeat_writer.done] if repeats else []
-            if tid not in writer.done or todo:
-                phys = run_test_physics(
-                    rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
-                    placement, timings,
-                )  # fmt: skip
-            if todo:  # before the test's row: a resumed run finds the test finished only with them
-                t2 = time.perf_counter()
-                rep_rng = repeat_rng(scenario.seed, group, i)
-                clouds = draw_repeat_scans(phys.hits_unloaded, noise, rep_rng, repeats, scenario.effects)
-                timings.scan += time.perf_counter() - t2
-                for k in todo:
-                    path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
-                    repeat_writer.append(RepeatRecord(tid, k, path))
-                timings.write += time.perf_counter() - t2
-            if tid not in writer.done:
-                rng = test_rng(scenario.seed, group, i)
-                s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
-                t3 = time.perf_counter()
-                cloud0, w0, cloud1, w1 = draw_readings(
-                    phys.hits_unloaded,
-                    phys.hits_loaded,
-                    s0.sensor_wrench,
-                    s1.sensor_wrench,
-                    noise,
-                    sensor,
-                    rng,
-                    scenario.effects,
+            bar = tqdm(total=len(jobs), desc="simulate", unit="test")
+        with TestWriter(out) as writer, RepeatWriter(out) if repeats else nullcontext() as repeat_writer:
+            for group, i, q, load in jobs:
+                tid = test_id(group, i)
+                todo = (
+                    [k for k in range(1, repeats + 1) if (tid, k) not in repeat_writer.done]
+                    if repeats
+                    else []
                 )
-                t4 = time.perf_counter()
-                timings.scan += t4 - t3
-                paths = (
-                    out / CLOUD_DIR / f"{tid}_unloaded.ply",
-                    out / CLOUD_DIR / f"{tid}_loaded.ply",
-                )
-                ply.write_ply(paths[0], cloud0)
-                ply.write_ply(paths[1], cloud1)
-                truth["tests"][tid] = {
-                    "group": group,
-                    "hook": load.hooks[i],
-                    "anchor": load.anchors[i],
-                    "tension_N": s1.wire_tension,
-                    "q_cmd_rad": s0.q_cmd.tolist(),
-                    "q_unloaded_rad": s0.q.tolist(),
-                    "q_loaded_rad": s1.q.tolist(),
-                    "block_pose_unloaded": s0.block_pose.tolist(),
-                    "block_pose_loaded": s1.block_pose.tolist(),
-                    "displacement_true_block_frame": phys.displacement_true.tolist(),
-                    "sensor_wrench_true_unloaded": s0.sensor_wrench.tolist(),
-                    "sensor_wrench_true_loaded": s1.sensor_wrench.tolist(),
-                    "scanner_pose_world": scanner.pose_world.tolist(),
-                    "points": [len(cloud0), len(cloud1)],
-                }
-                write_json_atomic(out / TRUTH_FILE, truth)
-                # the row is written last: it marks the test as finished
-                writer.append(TestRecord(tid, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
-                t5 = time.perf_counter()
-                timings.write += t5 - t4
-            if bar:
-                bar.update()
-    if bar:
-        bar.close()
+                if tid not in writer.done or todo:
+                    phys = run_test_physics(
+                        rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
+                        placement, timings,
+                    )  # fmt: skip
+                if todo:  # before the test's row: a resumed run finds the test finished only with them
+                    t2 = time.perf_counter()
+                    rep_rng = repeat_rng(scenario.seed, group, i)
+                    clouds = draw_repeat_scans(phys.hits_unloaded, noise, rep_rng, repeats, scenario.effects)
+                    timings.scan += time.perf_counter() - t2
+                    for k in todo:
+                        path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
+                        repeat_writer.append(RepeatRecord(tid, k, path))
+                    timings.write += time.perf_counter() - t2
+                if tid not in writer.done:
+                    rng = test_rng(scenario.seed, group, i)
+                    s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
+                    t3 = time.perf_counter()
+                    cloud0, w0, cloud1, w1 = draw_readings(
+                        phys.hits_unloaded,
+                        phys.hits_loaded,
+                        s0.sensor_wrench,
+                        s1.sensor_wrench,
+                        noise,
+                        sensor,
+                        rng,
+                        scenario.effects,
+                    )
+                    t4 = time.perf_counter()
+                    timings.scan += t4 - t3
+                    paths = (
+                        out / CLOUD_DIR / f"{tid}_unloaded.ply",
+                        out / CLOUD_DIR / f"{tid}_loaded.ply",
+                    )
+                    ply.write_ply(paths[0], cloud0)
+                    ply.write_ply(paths[1], cloud1)
+                    truth["tests"][tid] = {
+                        "group": group,
+                        "hook": load.hooks[i],
+                        "anchor": load.anchors[i],
+                        "tension_N": s1.wire_tension,
+                        "q_cmd_rad": s0.q_cmd.tolist(),
+                        "q_unloaded_rad": s0.q.tolist(),
+                        "q_loaded_rad": s1.q.tolist(),
+                        "block_pose_unloaded": s0.block_pose.tolist(),
+                        "block_pose_loaded": s1.block_pose.tolist(),
+                        "displacement_true_block_frame": phys.displacement_true.tolist(),
+                        "sensor_wrench_true_unloaded": s0.sensor_wrench.tolist(),
+                        "sensor_wrench_true_loaded": s1.sensor_wrench.tolist(),
+                        "scanner_pose_world": scanner.pose_world.tolist(),
+                        "points": [len(cloud0), len(cloud1)],
+                    }
+                    write_json_atomic(out / TRUTH_FILE, truth)
+                    # the row is written last: it marks the test as finished
+                    writer.append(TestRecord(tid, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
+                    t5 = time.perf_counter()
+                    timings.write += t5 - t4
+                if bar:
+                    bar.update()
+        if bar:
+            bar.close()
     return out
 
 

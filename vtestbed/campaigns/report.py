@@ -15,12 +15,12 @@ is paired): a ratio above 1 with its interval above 1 means the kappa-based choi
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from ..files import dumps
 from ..plotting import pyplot, save_figure
 from .spec import AXES
 
@@ -268,5 +268,5 @@ def write_report(df: pd.DataFrame, out: str | Path, manifest: dict | None = None
     files["spread_vs_predicted"] = str(plot_spread(summary, out / "spread_vs_predicted.png"))
     report = {"trials": len(df), "failed": int((df["status"] != "ok").sum()), "trends": trend_checks(summary),
               "spread_check": spread_check(summary), "pose_choice": choice.to_dict("records"), "files": files}  # fmt: skip
-    (out / "report.json").write_text(json.dumps(report, indent=1, default=float))
+    (out / "report.json").write_text(dumps(report, indent=1, default=float))
     return report

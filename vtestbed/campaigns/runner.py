@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import VtestbedError
+from ..files import folder_lock
 from ..scenario import Scenario
 from ..world.scan_noise import ScanNoise
 from ..world.sensors import ForceTorqueSensor
@@ -260,8 +261,11 @@ def _dask_client(scheduler):
         return scheduler
     try:
         return Client(scheduler, timeout=30)
-    except OSError as exc:
-        raise SweepError(f"--scheduler {scheduler!r}: cannot reach the Dask scheduler ({exc})") from None
+    except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address at all
+        raise SweepError(
+            f"--scheduler {scheduler!r}: cannot reach the Dask scheduler ({exc}); "
+            "give an address such as tcp://127.0.0.1:8786"
+        ) from None
 
 
 def _run_dask(batches, client, owned: bool):
@@ -315,7 +319,21 @@ def sweep(
     campaign = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SweepError(f"workers = {workers!r} must be an integer >= 1")
+    if batch_trials is not None and (
+        isinstance(batch_trials, bool) or not isinstance(batch_trials, int) or batch_trials < 1
+    ):
+        raise SweepError(
+            f"batch_trials = {batch_trials!r} must be an integer >= 1 (or None: about 2 s of work)"
+        )
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out, "results folder", SweepError):  # one writer at a time
+        return _sweep_into(
+            out, campaign, workers, scheduler, progress, batch_trials, stats, allow_code_change, t_start
+        )
+
+
+def _sweep_into(out, campaign, workers, scheduler, progress, batch_trials, stats, allow_code_change, t_start):
     manifest = open_manifest(out, campaign, allow_code_change)
     log = _logger(progress)
     t0 = time.perf_counter()

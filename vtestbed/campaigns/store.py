@@ -49,9 +49,25 @@ def read_results(out: str | Path) -> pd.DataFrame:
     parts = sorted((Path(out) / TRIALS_DIR).glob("part-*.parquet"))
     if not parts:
         return pd.DataFrame(columns=["trial_key"])
-    df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    df = pd.concat([_read_part(p) for p in parts], ignore_index=True)
     df = df.sort_values("trial_key", kind="stable").drop_duplicates("trial_key", keep="first")
     return df.sort_values([*AXES, "trial"], kind="stable").reset_index(drop=True)
+
+
+def _read_part(path: Path) -> pd.DataFrame:
+    """One Parquet part, or a SweepError naming it (a truncated or foreign file)."""
+    try:
+        frame = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several types (ArrowInvalid, OSError, ...)
+        raise SweepError(
+            f"{path}: not a readable Parquet part ({type(exc).__name__}: {str(exc)[:120]}); "
+            "delete it and rerun the sweep to recompute its trials"
+        ) from None
+    if "trial_key" not in frame.columns:
+        raise SweepError(
+            f"{path}: a Parquet part without the trial_key column; delete it and rerun the sweep"
+        )
+    return frame
 
 
 def code_fingerprint() -> str:
@@ -77,6 +93,12 @@ def open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dic
     code = code_fingerprint()
     if path.exists():
         manifest = read_json(path, "campaign manifest", SweepError)
+        for key in ("plans", "plan_quality"):
+            if not isinstance(manifest.get(key), dict):
+                raise SweepError(
+                    f"{path}: {key} must be a table (a corrupt manifest); delete the folder {out} "
+                    "or choose a new --out folder"
+                )
         if manifest.get("fingerprint") != campaign.fingerprint:
             raise SweepError(
                 f"{out} holds results of another campaign (fingerprint {manifest.get('fingerprint')} != "

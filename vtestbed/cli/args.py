@@ -4,6 +4,10 @@ that name the option and the valid form (exit code 2 through :func:`vtestbed.cli
 from __future__ import annotations
 
 import argparse
+import os
+import re
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
@@ -37,10 +41,98 @@ def pose_from_args(robot, args) -> np.ndarray:
     return parse_angles_deg(args.q_deg, "--q-deg", robot.dof)
 
 
+NEGATIVE_HINT = "negative first value: --q-deg=-10,20,... or --q-deg -10,20,..."
+
+
 def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--q-deg", default=DEFAULT_POSE_DEG, help="DH joint angles in degrees (default %(default)s)"
+        "--q-deg",
+        default=DEFAULT_POSE_DEG,
+        help=f"DH joint angles in degrees (default %(default)s; {NEGATIVE_HINT})",
     )
     parser.add_argument(
         "--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)"
     )
+
+
+# ---------------------------------------------------------------------- option types
+# argparse calls these on the option's text: a bad value exits 2 with one line naming the option
+# (argparse adds the usage line), before any work is done.
+def integer(low: int, high: int | None = None):
+    """An ``type=`` for an integer in ``[low, high]`` (no upper bound when None)."""
+    valid = f"[{low}, {high}]" if high is not None else f">= {low}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer {valid}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be an integer {valid}, got {text!r}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def number(low: float, high: float, unit: str = "", low_open: bool = False):
+    """An ``type=`` for a finite number in ``[low, high]`` (``(low, high]`` with ``low_open``)."""
+    u = f" {unit}" if unit else ""
+    valid = f"{'(' if low_open else '['}{low:g}, {high:g}]{u}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not (low < value <= high if low_open else low <= value <= high):  # refuses NaN, inf
+            raise argparse.ArgumentTypeError(f"must be a finite number in {valid}, got {text!r}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+SEED = integer(0)
+
+
+def output_dir(text: str) -> Path:
+    """An ``type=`` for an output folder: an existing folder we may write in, or one we can create
+    (its nearest existing parent is a writable folder); never a file."""
+    path = Path(text)
+    if not text:
+        raise argparse.ArgumentTypeError("must be a folder path, got ''")
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a file, not a folder: choose a folder path")
+    parent = path
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{path}: {parent} is a file, so the folder cannot be created")
+    try:
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise PermissionError
+        with tempfile.TemporaryFile(dir=parent):  # the real test (root passes os.access everywhere)
+            pass
+    except OSError:
+        where = "" if parent == path else f" (its parent {parent} is not writable, so it cannot be created)"
+        raise argparse.ArgumentTypeError(f"{path}: cannot write in this folder{where}") from None
+    return path
+
+
+NUMBER_LIST = re.compile(r"^-[\d.][\d.eE+-]*(,\s*[-+]?[\d.][\d.eE+-]*)+$")
+
+
+def join_negative_lists(argv: list[str]) -> list[str]:
+    """``--q-deg -10,20,...`` as ``--q-deg=-10,20,...``: argparse would take the value for an option.
+
+    Only a comma-separated list of numbers that starts with a minus sign right after a long option
+    is joined; ``--q-deg=-10,...`` is the explicit form and always works.
+    """
+    out = []
+    for token in argv:
+        if out and NUMBER_LIST.match(token) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from ..files import dumps
+from .args import output_dir
 
 
 def _cmd_diagnose(args) -> int:
@@ -19,7 +21,7 @@ def _cmd_diagnose(args) -> int:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics)
     if args.json:
-        print(json.dumps(report, indent=1, default=float))
+        print(dumps(report, indent=1, default=float))
         return 0
     from ..dataset import read_setup
 
@@ -34,7 +36,7 @@ def register(sub) -> None:
         "diagnose", help="detect, name and add the effects the paper's model misses (needs repeat scans)"
     )
     p.add_argument("dataset", type=Path)
-    p.add_argument("--out", type=Path, help="write report.json, report.md and gap.png here")
+    p.add_argument("--out", type=output_dir, help="write report.json, report.md and gap.png here")
     p.add_argument(
         "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
     )

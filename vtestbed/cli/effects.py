@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from ..files import dumps
 
 
 def _fmt(value) -> str:
@@ -18,7 +19,7 @@ def _cmd_list(args) -> int:
             name: {"summary": t.summary, "params": [p.__dict__ for p in t.PARAMS]}
             for name, t in EFFECTS.items()
         }
-        print(json.dumps(data, indent=1, default=str))
+        print(dumps(data, indent=1, default=str))
         return 0
     for name, kind in EFFECTS.items():
         print(f"{name}: {kind.summary}")
@@ -41,7 +42,7 @@ def _cmd_size(args) -> int:
     effects = scenario.effects or tuple(kind() for kind in EFFECTS.values())
     sizes = effect_sizes(scenario, effects)
     if args.json:
-        print(json.dumps([s.to_dict() for s in sizes], indent=1))
+        print(dumps([s.to_dict() for s in sizes], indent=1))
         return 0
     which = "the scenario's effects" if scenario.effects else "every effect at its realistic default"
     print(f"{scenario.name}: {scenario.n_tests} tests, {which}; share of the clean block deflection [%]")

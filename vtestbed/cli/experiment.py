@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from ..files import dumps
+from .args import output_dir
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -38,7 +40,7 @@ def _identify_with_model(args) -> int:
 
     out = identify_with_model(args.dataset, args.model)
     if args.json:
-        print(json.dumps(out, indent=1, default=float))
+        print(dumps(out, indent=1, default=float))
         return 0
     model = out["model"]
     print(f"model: the paper's plus {', '.join(model['terms']) or 'nothing'}; chi^2 {model['chi2']:.1f} "
@@ -71,7 +73,7 @@ def _cmd_identify(args) -> int:
     if truth is not None:
         out["joints"] = compare(result, truth)
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(dumps(out, indent=1))
         return 0
     print(
         f"{'joint':8}{'k_est [N*mm/rad]':>18}{'k_std':>12}{'k_std/k [%]':>12}"
@@ -119,7 +121,7 @@ def _cmd_demo(args) -> int:
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="run a scenario in the virtual lab and write a measurement dataset")
     p.add_argument("scenario", type=Path)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=output_dir, required=True)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_simulate)
 
@@ -138,12 +140,12 @@ def register(sub) -> None:
         "run", help="simulate + identify + compare with the truth; writes result.json and figures"
     )
     p.add_argument("scenario", type=Path)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=output_dir, required=True)
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("demo", help="run the paper's scenario (scenarios/kr60_paper.toml)")
-    p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    p.add_argument("--out", type=output_dir, default="runs/demo")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)

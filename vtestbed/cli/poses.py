@@ -5,7 +5,6 @@ Angles on the command line are DH angles in degrees (``--controller-deg`` for KU
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +13,11 @@ from ..design import influence, kappa, regions
 from ..design import optimal as design
 from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
 from ..design.priors import NAMED_PRIORS, stiffness_prior
-from ..errors import OutOfRangeError, UnknownNameError
+from ..errors import OutOfRangeError, ScenarioError, UnknownNameError, check_range
+from ..files import dumps, read_json
 from ..lab import DEFAULT_TENSION_N
 from ..robots import DEFAULT_ROBOT, load_robot
-from .args import parse_angles_deg, parse_numbers
+from .args import NEGATIVE_HINT, SEED, integer, number, output_dir, parse_angles_deg, parse_numbers
 
 DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in front of the robot
 
@@ -37,7 +37,7 @@ def _pose(robot, args, default=None):
 
 
 def _emit(args, data: dict, filename: str | None = None) -> None:
-    text = json.dumps(data, indent=1)
+    text = dumps(data, indent=1)
     if filename and getattr(args, "out", None):
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -46,7 +46,28 @@ def _emit(args, data: dict, filename: str | None = None) -> None:
 
 
 def _optimum(robot, args) -> kappa.Optimum:
-    return kappa.optimize(robot, point=_point(args.point), seed=args.seed, q6=np.radians(args.q6_deg))
+    j6 = robot.joints[-1]
+    q6 = np.radians(check_range("--q6-deg", args.q6_deg, np.degrees(j6.lower), np.degrees(j6.upper), "deg"))
+    return kappa.optimize(robot, point=_point(args.point), seed=args.seed, q6=q6)
+
+
+def _read_poses(path: str, robot) -> np.ndarray:
+    """The DH poses [rad] of a poses.json (from 'poses regions'): ``q_deg``, rows of dof finite numbers."""
+    data = read_json(path, "poses file (from 'vtestbed poses regions')", ScenarioError)
+    rows = data.get("q_deg")
+    ok = (
+        isinstance(rows, list)
+        and len(rows) > 0
+        and all(isinstance(r, list) and len(r) == robot.dof for r in rows)
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for r in rows for v in r)
+    )
+    q = np.asarray(rows, dtype=float) if ok else None
+    if q is None or not np.all(np.isfinite(q)):
+        raise ScenarioError(
+            f"{path}: q_deg must be a non-empty list of poses, each {robot.dof} finite DH angles in degrees, "
+            f"got {str(rows)[:80]}"
+        )
+    return np.radians(q)
 
 
 def _constraints(args) -> regions.PoseConstraints:
@@ -151,7 +172,7 @@ def _cmd_regions(args) -> int:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         marks = [(f"{len(sample.q)} sampled poses", sample.q, "w.")]
         plot_joint_plane(pmap, found, Path(args.out) / "regions.png", marks)
-        (Path(args.out) / "poses.json").write_text(json.dumps(sample.to_dict(), indent=1) + "\n")
+        (Path(args.out) / "poses.json").write_text(dumps(sample.to_dict(), indent=1) + "\n")
     _emit(args, data, "regions.json")
     return 0
 
@@ -170,7 +191,7 @@ def _prior(text: str, dof: int) -> np.ndarray:
 def _cmd_design(args) -> int:
     robot = load_robot(args.robot)
     if args.poses:
-        q = np.radians(np.asarray(json.loads(Path(args.poses).read_text())["q_deg"], dtype=float))
+        q = _read_poses(args.poses, robot)
     else:
         q = _regions_and_poses(robot, args)[2].q
     hooks = args.hooks.split(",") if args.hooks else None
@@ -186,7 +207,8 @@ def _cmd_design(args) -> int:
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         header = f"# {args.tests} tests chosen by 'vtestbed poses design' ({args.criterion}-optimal, {args.method})\n"
-        toml = header + design.scenario_toml([cands[i] for i in sel.indices])
+        name = f'name = "design_{args.criterion}_{args.tests}"\nrobot = "{robot.name}"\n\n'
+        toml = header + name + design.scenario_toml([cands[i] for i in sel.indices])
         (Path(args.out) / "design_scenario.toml").write_text(toml)
     _emit(args, data, "design.json")
     return 0
@@ -201,28 +223,46 @@ def register(sub) -> None:
         p.add_argument(
             "--point", default="wrist", help="wrist | flange | block | x,y,z offset in the flange [m]"
         )
-        p.add_argument("--seed", type=int, default=0, help="optimiser/sampling seed (default %(default)s)")
-        p.add_argument("--q6-deg", type=float, default=45.0, help="joint 6 for the optimum (default 45)")
+        p.add_argument("--seed", type=SEED, default=0, help="optimiser/sampling seed (default %(default)s)")
+        p.add_argument(
+            "--q6-deg",
+            type=number(-360, 360, "deg"),
+            default=45.0,
+            help="joint 6 for the optimum (default 45)",
+        )
         if pose:
-            p.add_argument("--q-deg", help="DH joint angles in degrees")
+            p.add_argument("--q-deg", help=f"DH joint angles in degrees ({NEGATIVE_HINT})")
             p.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees")
         if out:
-            p.add_argument("--out", help="directory for JSON and PNG files")
+            p.add_argument("--out", type=output_dir, help="directory for JSON and PNG files")
 
     def lab_args(p):
         p.add_argument(
-            "--step-deg", type=float, default=1.0, help="joint 2-3 grid step (default %(default)s)"
+            "--step-deg",
+            type=number(0.05, 30, "deg"),
+            default=1.0,
+            help="joint 2-3 grid step (default %(default)s)",
         )
-        p.add_argument("--threshold", type=float, default=0.7, help="region threshold (default %(default)s)")
         p.add_argument(
-            "--min-height", type=float, default=0.8, help="lowest block z [m] (default %(default)s)"
+            "--threshold", type=number(0, 1), default=0.7, help="region threshold (default %(default)s)"
+        )
+        p.add_argument(
+            "--min-height",
+            type=number(-10, 10, "m"),
+            default=0.8,
+            help="lowest block z [m] (default %(default)s)",
         )
         p.add_argument(
             "--box", default=DEFAULT_BOX, help="lab box xmin,ymin,zmin,xmax,ymax,zmax [m] ('' for none)"
         )
         p.add_argument("--select", help="regions to draw from, e.g. Z1,Z4 (default: all usable)")
-        p.add_argument("--n", type=int, default=10, help="poses to draw (default %(default)s)")
-        p.add_argument("--wrist-jitter-deg", type=float, default=30.0, help="joints 4, 5 spread (default 30)")
+        p.add_argument("--n", type=integer(1, 10000), default=10, help="poses to draw (default %(default)s)")
+        p.add_argument(
+            "--wrist-jitter-deg",
+            type=number(0, 180, "deg"),
+            default=30.0,
+            help="joints 4, 5 spread (default 30)",
+        )
 
     p = cmds.add_parser("criterion", help="the criterion at one pose (JSON)")
     common(p, pose=True, out=False)
@@ -235,8 +275,15 @@ def register(sub) -> None:
 
     p = cmds.add_parser("maps", help="joint 2-3 and Cartesian maps (PNG) and the regions")
     common(p, pose=True)
-    p.add_argument("--step-deg", type=float, default=0.5, help="joint 2-3 grid step (default %(default)s)")
-    p.add_argument("--threshold", type=float, default=0.7, help="region threshold (default %(default)s)")
+    p.add_argument(
+        "--step-deg",
+        type=number(0.05, 30, "deg"),
+        default=0.5,
+        help="joint 2-3 grid step (default %(default)s)",
+    )
+    p.add_argument(
+        "--threshold", type=number(0, 1), default=0.7, help="region threshold (default %(default)s)"
+    )
     p.set_defaults(func=_cmd_maps)
 
     p = cmds.add_parser("influence", help="joint influence (curvature at the optimum) and ranking")
@@ -259,13 +306,28 @@ def register(sub) -> None:
     p.add_argument("--hooks", help="comma-separated hooks (default all)")
     p.add_argument("--anchors", help="comma-separated rings (default all)")
     p.add_argument(
-        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension [N] (default %(default)s)"
+        "--tension",
+        type=number(0, 1e5, "N"),
+        default=DEFAULT_TENSION_N,
+        help="wire tension [N] (default %(default)s)",
     )
-    p.add_argument("--tests", type=int, default=10, help="tests to choose (default %(default)s)")
+    p.add_argument(
+        "--tests", type=integer(1, 10000), default=10, help="tests to choose (default %(default)s)"
+    )
     p.add_argument("--criterion", choices=design.CRITERIA, default="D")
     p.add_argument("--method", choices=design.METHODS, default="exchange")
-    p.add_argument("--sigma-p", type=float, default=design.SIGMA_P, help="displacement std [m]")
-    p.add_argument("--sigma-r", type=float, default=design.SIGMA_R, help="rotation std [rad]")
+    p.add_argument(
+        "--sigma-p",
+        type=number(0, 1, "m", low_open=True),
+        default=design.SIGMA_P,
+        help="displacement std [m]",
+    )
+    p.add_argument(
+        "--sigma-r",
+        type=number(0, 1, "rad", low_open=True),
+        default=design.SIGMA_R,
+        help="rotation std [rad]",
+    )
     p.add_argument("--stiffness-prior", required=True, metavar="NAME|k1,..,k6",
                    help=f"your stiffness guess: a named prior ({', '.join(NAMED_PRIORS)}; the paper's Table 5 is "
                         "also this virtual lab's truth, so it flatters) or 6 values in N*mm/rad")  # fmt: skip

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
+from ..files import dumps
 from ..lab import DEFAULT_TENSION_N
 from ..robots import DEFAULT_ROBOT, available_robots, load_robot
 from ..scenario import DEFAULT_ANCHOR, DEFAULT_HOOK
 from ..transforms import displacement
-from .args import add_pose_arguments, pose_from_args
+from .args import add_pose_arguments, number, pose_from_args
 
 
 def _cmd_robot(args) -> int:
@@ -52,7 +51,7 @@ def _cmd_load(args) -> int:
         "block_displacement_mm_mrad": (disp * 1e3).tolist(),
     }
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(dumps(result, indent=2))
         return 0
     print(f"pose (DH) [deg]: {np.round(result['q_cmd_deg'], 3).tolist()}; wire {args.hook} -> {args.anchor}")
     print(f"wire tension {loaded.wire_tension:.3f} N; equilibrium residual {loaded.residual:.1e} N*m")
@@ -88,7 +87,10 @@ def register(sub) -> None:
     p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
     p.add_argument(
-        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension in N (default %(default)s)"
+        "--tension",
+        type=number(0, 1e5, "N"),
+        default=DEFAULT_TENSION_N,
+        help="wire tension in N (default %(default)s)",
     )
     p.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
     p.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")

@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from ..files import dumps
 from ..lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N
 from ..robots import DEFAULT_ROBOT
-from .args import add_pose_arguments, parse_numbers, pose_from_args
+from .args import SEED, add_pose_arguments, number, output_dir, parse_numbers, pose_from_args
 
 DEFAULT_VIEW = "1,1,1"
 
@@ -95,7 +95,7 @@ def _cmd_scan(args) -> int:
             for name, f in (("unloaded", f0), ("loaded", f1))
         },
     }
-    (out / "scan.json").write_text(json.dumps(result, indent=2))
+    (out / "scan.json").write_text(dumps(result, indent=2))
     print(
         f"scanner {scanner.spec.name} at {args.distance_mm:g} mm, spacing {args.spacing_mm:g} mm, "
         f"{'noise-free' if args.noise_free else f'noise seed {args.seed}'}; clouds of {len(cloud0)} and "
@@ -112,17 +112,22 @@ def _cmd_scan(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("scan", help="scan the block unloaded and loaded; measured vs true displacement")
-    p.add_argument("--out", required=True, help="output folder for the PLY clouds and scan.json")
+    p.add_argument(
+        "--out", type=output_dir, required=True, help="output folder for the PLY clouds and scan.json"
+    )
     p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
     p.add_argument(
-        "--tension", type=float, default=DEFAULT_TENSION_N, help="wire tension in N (default %(default)s)"
+        "--tension",
+        type=number(0, 1e5, "N"),
+        default=DEFAULT_TENSION_N,
+        help="wire tension in N (default %(default)s)",
     )
     p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
     p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
     p.add_argument(
         "--distance-mm",
-        type=float,
+        type=number(0, 1e4, "mm", low_open=True),
         default=DEFAULT_SCANNER_DISTANCE_M * 1e3,
         help="scanner to block centre (default %(default)s)",
     )
@@ -132,9 +137,12 @@ def register(sub) -> None:
         help="direction block centre -> scanner in the block frame (default %(default)s)",
     )
     p.add_argument(
-        "--spacing-mm", type=float, default=0.5, help="point spacing at the block (default %(default)s)"
+        "--spacing-mm",
+        type=number(0.02, 5, "mm"),
+        default=0.5,
+        help="point spacing at the block (default %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default %(default)s)")
+    p.add_argument("--seed", type=SEED, default=0, help="noise seed (default %(default)s)")
     p.add_argument(
         "--noise-free", action="store_true", help="a perfect scanner (no noise, outliers or drift)"
     )

@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 from ..campaigns.spec import load_campaign
+from ..files import dumps
+from .args import integer, output_dir
 
 
 def _text_report(report: dict) -> str:
@@ -43,7 +45,7 @@ def _cmd_sweep(args) -> int:
 
     campaign = load_campaign(args.scenario)  # every error is raised here, before any work
     if args.dry_run:
-        print(json.dumps(campaign.to_dict() | {"trials_total": campaign.n_trials}, indent=1))
+        print(dumps(campaign.to_dict() | {"trials_total": campaign.n_trials}, indent=1))
         return 0
     df = sweep(campaign, args.out, workers=args.workers, scheduler=args.scheduler,
                progress=not args.quiet, batch_trials=args.batch_trials,
@@ -60,12 +62,14 @@ def _cmd_sweep(args) -> int:
 def register(sub) -> None:
     p = sub.add_parser("sweep", help="run a Monte Carlo campaign ([campaign] table) into Parquet; resumable")
     p.add_argument("scenario", type=Path, help="scenario TOML file with a [campaign] table")
-    p.add_argument("--out", type=Path, required=True, help="results folder (rerun to complete it)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (default %(default)s)")
+    p.add_argument("--out", type=output_dir, required=True, help="results folder (rerun to complete it)")
+    p.add_argument(
+        "--workers", type=integer(1, 1024), default=1, help="local worker processes (default %(default)s)"
+    )
     p.add_argument(
         "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (overrides --workers)"
     )
-    p.add_argument("--batch-trials", type=int, help="trials per task (default: about 2 s of work)")
+    p.add_argument("--batch-trials", type=integer(1), help="trials per task (default: about 2 s of work)")
     p.add_argument("--allow-code-change", action="store_true",
                    help="complete a folder started by other vtestbed code (results are mixed)")  # fmt: skip
     p.add_argument("--dry-run", action="store_true", help="validate and list the campaign, run nothing")

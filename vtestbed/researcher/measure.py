@@ -13,8 +13,9 @@ commanded pose.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -147,13 +148,52 @@ def identify_measurements(
     tests = [m for m in measurements if m.group == "identification"]
     if not tests:
         raise DatasetError("the dataset has no test in group 'identification'")
-    return identify(
+    result = identify(
         np.array([m.jacobian for m in tests]),
         np.array([m.wrench for m in tests]),
         np.array([m.displacement for m in tests]),
         method=method,
         joint_names=joint_names,
     )
+    still = motionless_tests(tests, result.compliance)
+    if not still:
+        return result
+    note = (
+        f"tests {', '.join(still)}: the block barely moved under the load (measured displacement below "
+        f"{MOTIONLESS_FRACTION:.0%} of the fitted model's, translation and rotation): the same scan given "
+        "twice, or the load never reached the block? Check their clouds and readings"
+    )
+    warnings.warn(note, stacklevel=2)
+    return replace(result, warnings=(*result.warnings, note))
+
+
+# A loaded block moves: a test whose measured displacement is below this fraction of the fitted
+# model's prediction, in translation and in rotation, cannot be a real loaded scan.
+MOTIONLESS_FRACTION = 0.05
+
+
+def motionless_tests(tests: list[TestMeasurement], compliance: np.ndarray) -> list[str]:
+    """Ids of the tests whose block did not move (physically impossible under their load): a
+    measured displacement exactly zero, or below :data:`MOTIONLESS_FRACTION` of the prediction
+    ``J C J^T F`` of the fitted compliance ``C``, both in translation and in rotation."""
+    out = []
+    compliance = np.asarray(compliance, dtype=float)
+    for m in tests:
+        measured = np.asarray(m.displacement)
+        if not np.any(measured):
+            out.append(m.test_id)
+            continue
+        if not np.all(np.isfinite(compliance)) or np.any(compliance <= 0):
+            continue  # no trustworthy prediction to compare with
+        predicted = predict_displacement(m, 1.0 / compliance)
+        ratios = [
+            np.linalg.norm(measured[s]) / np.linalg.norm(predicted[s])
+            for s in (slice(0, 3), slice(3, 6))
+            if np.linalg.norm(predicted[s]) > 0
+        ]
+        if ratios and max(ratios) < MOTIONLESS_FRACTION:
+            out.append(m.test_id)
+    return out
 
 
 def predict_displacement(measurement: TestMeasurement, stiffness: np.ndarray) -> np.ndarray:

@@ -1,0 +1,153 @@
+"""Bad option values and broken pipes on the command line (issue 13): one error line naming the
+option and its valid values, exit 2, no traceback, nothing written; strict JSON output."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from quick_campaign import QUICK
+
+from vtestbed.cli.args import join_negative_lists
+from vtestbed.cli.main import main
+from vtestbed.files import dumps, write_json_atomic
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = str(ROOT / "scenarios" / "kr60_paper.toml")
+
+
+def _refused(argv, capsys) -> str:
+    """The one error line of ``vtestbed argv`` (exit 2, argparse's usage line aside)."""
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse: usage line + error line
+        code = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert "Traceback" not in "\n".join(err)
+    return err[-1]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["poses", "optimize", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
+        (["scan", "--out", "{tmp}/s", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
+        (["poses", "regions", "--wrist-jitter-deg", "nan"], "argument --wrist-jitter-deg: must be a finite number in [0, 180] deg, got 'nan'"),
+        (["poses", "optimize", "--q6-deg", "nan"], "argument --q6-deg: must be a finite number in [-360, 360] deg, got 'nan'"),
+        (["poses", "optimize", "--q6-deg", "1e9"], "argument --q6-deg: must be a finite number in [-360, 360] deg, got '1e9'"),
+        (["poses", "optimize", "--q6-deg", "355"], "vtestbed: error: --q6-deg = 355 deg is outside the valid range [-350, 350] deg"),
+        (["sweep", "x.toml", "--out", "{tmp}/sw", "--batch-trials", "-5"], "argument --batch-trials: must be an integer >= 1, got '-5'"),
+        (["sweep", "x.toml", "--out", "{tmp}/sw", "--workers", "0"], "argument --workers: must be an integer [1, 1024], got '0'"),
+        (["simulate", PAPER, "--out", "{tmp}/afile"], "argument --out: {tmp}/afile is a file, not a folder: choose a folder path"),
+        (["run", PAPER, "--out", "{tmp}/afile/sub"], "argument --out: {tmp}/afile/sub: {tmp}/afile is a file, so the folder cannot be created"),
+        (["poses", "optimize", "--out", "/proc/vtestbed/x"], "argument --out: /proc/vtestbed/x: cannot write in this folder (its parent /proc is not writable, so it cannot be created)"),
+        (["demo", "--out", "{tmp}/afile"], "argument --out: {tmp}/afile is a file, not a folder: choose a folder path"),
+        (["diagnose", "{tmp}", "--out", "{tmp}/afile"], "argument --out: {tmp}/afile is a file, not a folder: choose a folder path"),
+        (["load", "--tension", "inf"], "argument --tension: must be a finite number in [0, 100000] N, got 'inf'"),
+        (["scan", "--out", "{tmp}/s", "--distance-mm", "0"], "argument --distance-mm: must be a finite number in (0, 10000] mm, got '0'"),
+        (["poses", "design", "--stiffness-prior", "paper_table5", "--poses", "{tmp}/none.json"], "vtestbed: error: poses file (from 'vtestbed poses regions') {tmp}/none.json is missing (the file does not exist)"),
+        (["poses", "design", "--stiffness-prior", "paper_table5", "--poses", "{tmp}/afile"], "vtestbed: error: {tmp}/afile: not valid JSON: Expecting value: line 1 column 1 (char 0)"),
+        (["poses", "design", "--stiffness-prior", "paper_table5", "--poses", "{tmp}/ragged.json"], "vtestbed: error: {tmp}/ragged.json: q_deg must be a non-empty list of poses, each 6 finite DH angles in degrees, got [[0, -60, -20, 30, 50, 45], [0, 1]]"),
+    ],
+)  # fmt: skip
+def test_bad_option_values_give_one_line_and_exit_2(tmp_path, capsys, argv, message):
+    (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "ragged.json").write_text(json.dumps({"q_deg": [[0, -60, -20, 30, 50, 45], [0, 1]]}))
+    line = _refused([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys)
+    assert line.endswith(message.replace("{tmp}", str(tmp_path))), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "ragged.json"]  # nothing written
+
+
+def test_an_unreachable_or_malformed_scheduler_is_one_line(tmp_path, capsys):
+    path = tmp_path / "quick.toml"
+    path.write_text(QUICK)
+    line = _refused(
+        ["sweep", str(path), "--out", str(tmp_path / "out"), "--scheduler", "not a url", "--quiet"], capsys
+    )
+    assert line.startswith("vtestbed: error: --scheduler 'not a url': cannot reach the Dask scheduler")
+    assert line.endswith("give an address such as tcp://127.0.0.1:8786")
+
+
+def test_a_corrupt_sweep_folder_is_named(tiny_sweep, tmp_path):
+    from quick_campaign import tiny
+
+    from vtestbed.campaigns.runner import sweep
+    from vtestbed.campaigns.store import SweepError, read_results
+
+    df, ref = tiny_sweep
+    out = tmp_path / "copy"
+    (out / "trials").mkdir(parents=True)
+    (out / "campaign.json").write_text((ref / "campaign.json").read_text())
+    parts = sorted((ref / "trials").glob("part-*.parquet"))
+    for p in parts:
+        (out / "trials" / p.name).write_bytes(p.read_bytes())
+    assert len(read_results(out)) == len(df) == 24
+    victim = out / "trials" / parts[0].name
+    victim.write_bytes(parts[0].read_bytes()[:100])  # truncated
+    with pytest.raises(SweepError, match=rf"{victim}: not a readable Parquet part .*delete it and rerun"):
+        read_results(out)
+    pd.DataFrame({"x": [1]}).to_parquet(victim)
+    with pytest.raises(SweepError, match=r"a Parquet part without the trial_key column"):
+        read_results(out)
+    (out / "campaign.json").write_text('{"fingerprint": 1')
+    with pytest.raises(SweepError, match=r"campaign\.json: not valid JSON"):
+        sweep(tiny(), out, progress=False)
+    manifest = json.loads((ref / "campaign.json").read_text()) | {"plans": [1]}
+    (out / "campaign.json").write_text(json.dumps(manifest))
+    with pytest.raises(SweepError, match=r"campaign\.json: plans must be a table \(a corrupt manifest\)"):
+        sweep(tiny(), out, progress=False)
+    with pytest.raises(SweepError, match=r"batch_trials = -5 must be an integer >= 1"):
+        sweep(tiny(), out, progress=False, batch_trials=-5)
+
+
+def test_negative_lists_work_as_option_values(robot, capsys):
+    assert join_negative_lists(["poses", "criterion", "--q-deg", "-10,-30,-20,40,60,45", "--seed", "-1"]) == [
+        "poses", "criterion", "--q-deg=-10,-30,-20,40,60,45", "--seed", "-1"]  # fmt: skip
+    assert main(["poses", "criterion", "--q-deg", "-10,-30,-20,40,60,45"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert main(["poses", "criterion", "--q-deg=-10,-30,-20,40,60,45"]) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert first["inv_kappa"] == second["inv_kappa"] and first["q_deg"][0] == pytest.approx(-10.0, abs=1e-12)
+
+
+def test_a_closed_stdout_pipe_exits_0_silently(tmp_path):
+    env = os.environ | {"PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "vtestbed", "poses", "criterion", "--q-deg", "0,-30,-20,40,60,45"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)  # fmt: skip
+    proc.stdout.close()  # the reader is gone before the command prints (like `| head` after line 1)
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0, err
+    assert err == ""
+
+
+def test_json_output_is_strict_nan_and_inf_are_null(tmp_path):
+    data = {"k": np.array([1.5, np.nan]), "std": [float("inf"), 2], "n": np.int64(3), "ok": np.bool_(True)}
+    assert dumps(data, indent=None) == '{"k": [1.5, null], "std": [null, 2], "n": 3, "ok": true}'
+    write_json_atomic(tmp_path / "r.json", {"chi2": float("nan"), "x": 0.1 + 0.2})
+    text = (tmp_path / "r.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}")) == {
+        "chi2": None, "x": 0.30000000000000004}  # fmt: skip
+    assert dumps({"a": 1.0}, default=float) == '{\n "a": 1.0\n}'
+
+
+def test_design_out_writes_a_scenario_simulate_accepts(tmp_path, capsys):
+    from vtestbed.scenario import load_scenario
+
+    poses = tmp_path / "poses.json"
+    poses.write_text(
+        json.dumps(
+            {"q_deg": [[0, -60, -20, 30, 50, 45], [20, -40, -30, -40, 60, 45], [-20, -70, 0, 60, 40, 0]]}
+        )
+    )
+    argv = ["poses", "design", "--poses", str(poses), "--tests", "3", "--stiffness-prior", "paper_table5",
+            "--out", str(tmp_path / "d")]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    scenario = load_scenario(tmp_path / "d" / "design_scenario.toml")
+    assert scenario.name == "design_D_3" and scenario.n_tests == 3 and scenario.robot_name == "kuka_kr60_3"

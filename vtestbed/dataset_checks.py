@@ -1,0 +1,151 @@
+"""Validation of the dataset files (setup.json, tests.csv, repeats.csv) as :mod:`vtestbed.dataset`
+reads them.
+
+Every check raises :class:`~vtestbed.errors.DatasetError` naming the file, the field (or the line)
+and the valid values, so that a researcher who fills a dataset in by hand can fix it without a
+traceback: a value of the wrong type or shape, a number that is not finite or outside its range,
+a CSV row with too few or too many fields, text that is not UTF-8, a cloud path that leaves the
+dataset folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DatasetError
+
+BLOCK_EDGE_RANGE_M = (1e-3, 1.0)  # a target block on a flange: 1 mm to 1 m
+MOUNT_OFFSET_MAX_M = 2.0  # block or sensor frame within 2 m of the flange
+SENSOR_RANGE_MAX = 1e6  # N or N*m: far above any 6-axis F/T sensor
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def number(value, where: str, field: str, low: float, high: float, unit: str) -> float:
+    """A finite number in ``[low, high]`` (JSON value), or a DatasetError naming ``field``."""
+    if not _is_number(value) or not low <= value <= high:  # refuses NaN and inf
+        raise DatasetError(f"{where}: {field} must be a number in [{low:g}, {high:g}] {unit}, got {value!r}")
+    return float(value)
+
+
+def string(value, where: str, field: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise DatasetError(f"{where}: {field} must be a non-empty string, got {value!r}")
+    return value
+
+
+def rigid_transform(value, where: str, field: str) -> np.ndarray:
+    """A 4x4 rigid transform (rows of numbers, orthonormal rotation, last row 0 0 0 1, translation
+    within :data:`MOUNT_OFFSET_MAX_M` of the flange) [m]."""
+    ok = (
+        isinstance(value, list)
+        and len(value) == 4
+        and all(isinstance(r, list) and len(r) == 4 and all(_is_number(v) for v in r) for r in value)
+    )
+    m = np.asarray(value, dtype=float) if ok else None
+    if (
+        m is None
+        or not np.all(np.isfinite(m))
+        or np.abs(m).max() > 1e3  # also keeps the products below from overflowing
+        or not np.allclose(m[3], [0, 0, 0, 1])
+        or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)
+        or np.linalg.det(m[:3, :3]) < 0
+        or np.linalg.norm(m[:3, 3]) > MOUNT_OFFSET_MAX_M
+    ):
+        raise DatasetError(
+            f"{where}: {field} must be a 4x4 rigid transform (4 rows of 4 finite numbers, a rotation, "
+            f"last row [0, 0, 0, 1], translation within {MOUNT_OFFSET_MAX_M:g} m of the flange), got {value!r}"
+        )
+    return m
+
+
+def force_sensor(value, where: str) -> tuple[str, tuple[float, ...]]:
+    """(name, range) from the ``force_sensor`` table: 6 positive finite numbers |Fx|..|Tz|."""
+    if not isinstance(value, dict):
+        raise DatasetError(
+            f'{where}: force_sensor must be a table {{"name": ..., "range_N_Nm": [6 numbers]}}, got {value!r}'
+        )
+    name = value.get("name", "force sensor")
+    if not isinstance(name, str):
+        raise DatasetError(f"{where}: force_sensor.name must be a string, got {name!r}")
+    rng = value.get("range_N_Nm")
+    if (
+        not isinstance(rng, list)
+        or len(rng) != 6
+        or not all(_is_number(v) and 0 < v <= SENSOR_RANGE_MAX for v in rng)
+    ):
+        raise DatasetError(
+            f"{where}: force_sensor.range_N_Nm must be 6 numbers (Fx..Tz), each in (0, {SENSOR_RANGE_MAX:g}] "
+            f"N or N*m (a NaN or zero range would switch the overload check off), got {rng!r}"
+        )
+    return name, tuple(float(v) for v in rng)
+
+
+# ---------------------------------------------------------------------- CSV files
+def read_csv(path: Path, columns: list[str], what: str) -> list[tuple[int, dict]]:
+    """The rows of a dataset CSV file as (line number, row); every row has exactly the header's
+    fields, the header holds every column of ``columns``."""
+    if not path.is_file():
+        raise DatasetError(f"{what} {path} is missing")
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None) or []
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise DatasetError(
+                    f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(columns)})"
+                )
+            rows = []
+            for fields in reader:
+                line = reader.line_num
+                if not fields:  # a blank line
+                    continue
+                if len(fields) != len(header):
+                    raise DatasetError(
+                        f"{path} line {line}: {len(fields)} fields, the header has {len(header)} "
+                        f"(a row cut short or a stray comma?)"
+                    )
+                rows.append((line, dict(zip(header, fields))))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: not UTF-8 text (byte {exc.start}): is this the right {what}?") from None
+    except csv.Error as exc:
+        raise DatasetError(f"{path}: not a valid CSV file: {exc}") from None
+    return rows
+
+
+def row_numbers(row: dict, columns: list[str], where: str) -> np.ndarray:
+    """The finite numbers in ``columns`` of a CSV row."""
+    values = []
+    for c in columns:
+        try:
+            value = float(row[c])
+        except ValueError:
+            raise DatasetError(
+                f"{where}: {c} must be a number (pose, wrench and scanner columns must be numbers), "
+                f"got {row[c]!r}"
+            ) from None
+        if not math.isfinite(value):
+            raise DatasetError(
+                f"{where}: {c} = {row[c]!r}: pose, wrench and scanner columns must be finite numbers"
+            )
+        values.append(value)
+    return np.array(values)
+
+
+def cloud_path(root: Path, text: str, where: str, field: str, example: str) -> Path:
+    """``root / text`` if ``text`` is a relative path that stays inside the dataset folder."""
+    rel = (text or "").strip()
+    path = root / rel
+    if not rel or "\0" in rel or Path(rel).is_absolute() or not path.resolve().is_relative_to(root.resolve()):
+        raise DatasetError(
+            f"{where}: {field} {rel!r} must be a path inside the dataset folder {root}, relative to it "
+            f"(e.g. {example})"
+        )
+    return path
