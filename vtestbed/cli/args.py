@@ -136,3 +136,18 @@ def join_negative_lists(argv: list[str]) -> list[str]:
         else:
             out.append(token)
     return out
+
+
+def add_load_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--tension``, ``--anchor``, ``--hook``: one wire load, with the lab's defaults."""
+    from ..lab import DEFAULT_TENSION_N
+    from ..scenario import DEFAULT_ANCHOR, DEFAULT_HOOK
+
+    parser.add_argument(
+        "--tension",
+        type=number(0, 1e5, "N"),
+        default=DEFAULT_TENSION_N,
+        help="wire tension in N (default %(default)s)",
+    )
+    parser.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
+    parser.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")

@@ -5,11 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..files import dumps
-from ..lab import DEFAULT_TENSION_N
 from ..robots import DEFAULT_ROBOT, available_robots, load_robot
-from ..scenario import DEFAULT_ANCHOR, DEFAULT_HOOK
 from ..transforms import displacement
-from .args import add_pose_arguments, number, pose_from_args
+from .args import add_load_arguments, add_pose_arguments, pose_from_args
 
 
 def _cmd_robot(args) -> int:
@@ -86,14 +84,7 @@ def register(sub) -> None:
     p = sub.add_parser("load", help="joint deflections and block displacement at a pose and a wire tension")
     p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
-    p.add_argument(
-        "--tension",
-        type=number(0, 1e5, "N"),
-        default=DEFAULT_TENSION_N,
-        help="wire tension in N (default %(default)s)",
-    )
-    p.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
-    p.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")
+    add_load_arguments(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_load)
 

@@ -8,9 +8,17 @@ from pathlib import Path
 import numpy as np
 
 from ..files import dumps
-from ..lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N
+from ..lab import DEFAULT_SCANNER_DISTANCE_M
 from ..robots import DEFAULT_ROBOT
-from .args import SEED, add_pose_arguments, number, output_dir, parse_numbers, pose_from_args
+from .args import (
+    SEED,
+    add_load_arguments,
+    add_pose_arguments,
+    number,
+    output_dir,
+    parse_numbers,
+    pose_from_args,
+)
 
 DEFAULT_VIEW = "1,1,1"
 
@@ -117,14 +125,7 @@ def register(sub) -> None:
     )
     p.add_argument("--robot", default=DEFAULT_ROBOT)
     add_pose_arguments(p)
-    p.add_argument(
-        "--tension",
-        type=number(0, 1e5, "N"),
-        default=DEFAULT_TENSION_N,
-        help="wire tension in N (default %(default)s)",
-    )
-    p.add_argument("--anchor", default="ring_5", help="table ring (default %(default)s)")
-    p.add_argument("--hook", default="hook_x", help="block hook (default %(default)s)")
+    add_load_arguments(p)
     p.add_argument(
         "--distance-mm",
         type=number(0, 1e4, "mm", low_open=True),
