@@ -64,3 +64,21 @@ def tiny_sweep(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("sweep") / "ref"
     return sweep(tiny(), out, workers=1, progress=False), out
+
+
+def paper_scenario_data(n_tests: int, n_val: int, name: str, seed: int, **scanner) -> dict:
+    """The paper scenario's mapping cut to ``n_tests`` identification and ``n_val`` validation tests."""
+    import copy
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml").read_text()
+    data = copy.deepcopy(tomllib.loads(text))
+    data["name"], data["seed"] = name, seed
+    data["poses"]["angles_deg"] = data["poses"]["angles_deg"][:n_tests]
+    data["validation"]["angles_deg"] = data["validation"]["angles_deg"][:n_val]
+    for key in ("hook", "anchor"):
+        data["load"][key] = data["load"][key][:n_tests]
+        data["validation"][key] = data["validation"][key][:n_val]
+    data["scanner"].update(scanner)
+    return data

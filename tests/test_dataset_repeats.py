@@ -1,13 +1,12 @@
 """Repeat scans in the dataset protocol: scenario key, world stream, repeats.csv, simulate and resume."""
 
-import copy
 import json
 import shutil
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import paper_scenario_data
 
 from vtestbed import cli, ply
 from vtestbed.campaigns.montecarlo import prepare
@@ -24,15 +23,7 @@ SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
 def scenario_data(n_tests=3, n_val=1, seed=11, **scanner):
     """The paper scenario cut to ``n_tests`` identification and ``n_val`` validation tests."""
-    data = copy.deepcopy(tomllib.loads((SCENARIOS / "kr60_paper.toml").read_text()))
-    data["name"], data["seed"] = "repeats", seed
-    data["poses"]["angles_deg"] = data["poses"]["angles_deg"][:n_tests]
-    data["validation"]["angles_deg"] = data["validation"]["angles_deg"][:n_val]
-    for key in ("hook", "anchor"):
-        data["load"][key] = data["load"][key][:n_tests]
-        data["validation"][key] = data["validation"][key][:n_val]
-    data["scanner"].update(scanner)
-    return data
+    return paper_scenario_data(n_tests, n_val, "repeats", seed, **scanner)
 
 
 def scenario(**kwargs):

@@ -1,12 +1,10 @@
 """The model-free noise floor from repeat scans, checked against independent references."""
 
-import copy
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import POSE_DEG
+from conftest import POSE_DEG, paper_scenario_data
 
 from vtestbed import dataset
 from vtestbed.campaigns.montecarlo import prepare
@@ -37,15 +35,7 @@ POINT_NOISE = ScanNoise(range_std_m=10e-6, dropout_start_deg=90.0, dropout_full_
 
 
 def small(n_tests=2, n_val=1, **scanner):
-    data = copy.deepcopy(tomllib.loads((SCENARIOS / "kr60_paper.toml").read_text()))
-    data["name"], data["seed"] = "floor", 3
-    data["poses"]["angles_deg"] = data["poses"]["angles_deg"][:n_tests]
-    data["validation"]["angles_deg"] = data["validation"]["angles_deg"][:n_val]
-    for key in ("hook", "anchor"):
-        data["load"][key] = data["load"][key][:n_tests]
-        data["validation"][key] = data["validation"][key][:n_val]
-    data["scanner"].update(scanner)
-    return parse_scenario(data, "floor.toml")
+    return parse_scenario(paper_scenario_data(n_tests, n_val, "floor", 3, **scanner), "floor.toml")
 
 
 def perturbed(pose: np.ndarray, xi: np.ndarray) -> np.ndarray:

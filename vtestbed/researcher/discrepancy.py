@@ -85,9 +85,9 @@ def diagnose(
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
-            "per_test": _per_test(white, base.residuals),
+            "per_test": (per_test := _per_test(white, base.residuals)),
             "features": (features := pose_features(ctx)),
-            "patterns": residual_patterns(_per_test(white, base.residuals), features),
+            "patterns": residual_patterns(per_test, features),
             "model_rejected": bool(base.p_value < alpha),
         },
         "named": [c.label for c in chosen],
@@ -273,8 +273,8 @@ def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
             "parameters": report["model"]["parameters"]}  # fmt: skip
 
 
-def read_model_terms(path, robot, kin) -> list:
-    """The candidate terms a model file names, checked against the dataset's robot."""
+def read_model(path, robot, kin) -> tuple[list, str]:
+    """The candidate terms a model file names, checked against the dataset's robot, and its statics."""
     from ..files import read_json
 
     data = read_json(path, "model file", DatasetError)
@@ -291,7 +291,7 @@ def read_model_terms(path, robot, kin) -> list:
     unknown = [t for t in terms if t not in pool]
     if unknown:
         raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
-    return [pool[t] for t in terms]
+    return [pool[t] for t in terms], data.get("statics", "exact")
 
 
 def identify_with_model(root, model_path) -> dict:
@@ -299,10 +299,8 @@ def identify_with_model(root, model_path) -> dict:
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
-    terms = read_model_terms(model_path, setup.robot, kin)
-    from ..files import read_json
-
-    exact = _statics(read_json(model_path, "model file", DatasetError).get("statics", "exact"), kin, setup)
+    terms, statics = read_model(model_path, setup.robot, kin)
+    exact = _statics(statics, kin, setup)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
     ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
