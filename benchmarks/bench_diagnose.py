@@ -33,7 +33,9 @@ def main() -> None:
             w0, c0 = time.perf_counter(), time.process_time()
             report = diagnose(data, out=Path(tmp) / f"diag_{statics}", statics=statics)
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-            print(f"diagnose ({statics} statics): {wall:.2f} s wall, {cpu:.2f} s CPU; named {report['named']}")
+            print(
+                f"diagnose ({statics} statics): {wall:.2f} s wall, {cpu:.2f} s CPU; named {report['named']}"
+            )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,11 @@
-"""Median time of one static equilibrium solve of the truth world (wire taut), and of tightening.
+"""Static equilibrium of the truth world: each stage's median time next to its target and floor.
+
+Stages (20 random KR60 poses, hook_x to ring_5; median over poses of the median of repeats):
+the unloaded solve from the commanded pose (what every test does first), the taut solve (wire at
+200 N) from the commanded pose, a warm solve, and tightening to 200 N from the unloaded state.
+Floors: the measurements of issue 12 for a minimal Newton (tangent from mjd_inverseFD) and a
+minimal held-tension tighten; "work" is the MuJoCo work alone (calls x the cost of one residual,
+tangent and readout, measured here). Then 1000 sensor-feasible random tests, counting failures.
 
 Run: .venv/bin/python benchmarks/bench_equilibrium.py
 """
@@ -8,50 +15,103 @@ from __future__ import annotations
 import numpy as np
 from _timing import median_time  # benchmarks/ is on sys.path when run as a script
 
+from vtestbed.errors import ConvergenceError, SensorOverloadError
 from vtestbed.world.rig import Rig
+
+# Issue 12 (this machine): before = the chord/secant solver; floor = a minimal implementation.
+BEFORE = {"cold taut": (227e-6, 19), "tighten": (1.19e-3, 85)}
+FLOOR = {"cold taut": (76e-6, "3 Newton iterations"), "tighten": (53e-6, "6 residual calls")}
+TARGET = {"cold unloaded": 80e-6, "cold taut": 80e-6, "tighten": 100e-6}
+
+
+def _counted(rig: Rig, fn, counts: list) -> None:
+    r0, t0 = rig.residual_calls, rig.tangent_calls
+    fn()
+    counts.append((rig.residual_calls - r0, rig.tangent_calls - t0))
+
+
+def _random_tests(n: int = 1000, seed: int = 2023) -> tuple[int, int, int]:
+    rig, rng = Rig(), np.random.default_rng(seed)
+    hooks, rings = list(rig.lab.block.hooks), list(rig.lab.table.anchors)
+    feasible = overloaded = failed = 0
+    while feasible < n:
+        rig.command(rng.uniform(rig.robot.lower, rig.robot.upper))
+        rig.hook(hooks[rng.integers(len(hooks))], rings[rng.integers(len(rings))])
+        try:
+            rig.solve()
+            rig.tighten(rng.uniform(1.0, 990.0))
+            feasible += 1
+        except SensorOverloadError:
+            overloaded += 1
+        except ConvergenceError:
+            failed += 1
+            feasible += 1
+    return feasible, overloaded, failed
 
 
 def main() -> None:
     rig = Rig()
     rng = np.random.default_rng(0)
-    poses = [
-        np.radians(
-            [
-                rng.uniform(-20, 20),
-                rng.uniform(-90, -30),
-                rng.uniform(-60, 20),
-                rng.uniform(-90, 90),
-                rng.uniform(30, 90),
-                rng.uniform(-90, 90),
-            ]
-        )
-        for _ in range(20)
-    ]
-    cold, warm, tighten, iters = [], [], [], []
+    lows, highs = np.radians([-20, -90, -60, -90, 30, -90]), np.radians([20, -30, 20, 90, 90, 90])
+    poses = [rng.uniform(lows, highs) for _ in range(20)]
+    times = {k: [] for k in ("cold unloaded", "cold taut", "warm", "tighten")}
+    counts = {k: [] for k in times}
     for q in poses:
         rig.command(q)
         rig.hook("hook_x", "ring_5")
-        state = rig.tighten(200.0)
+        unloaded_q = rig.solve().qpos_all
 
-        def cold_solve():
-            rig._q_guess = rig.model.qpos_spring.copy()  # start from the commanded pose
-            iters.append(rig.solve().iterations)
+        def cold_unloaded():
+            rig.slacken_wire()
+            rig._q_guess = rig.model.qpos_spring.copy()  # from the commanded pose
+            rig.solve()
 
-        cold.append(median_time(cold_solve, 20))
-        warm.append(median_time(rig.solve, 50))
-        tighten.append(median_time(lambda: rig.tighten(200.0), 5))
-        assert state.residual < 1e-8
-    print("static equilibrium, wire taut at 200 N, 20 poses (median over poses of median times):")
+        def tighten(u=unloaded_q):
+            rig.slacken_wire()
+            rig._q_guess = u.copy()  # from the unloaded equilibrium, as a test runs
+            rig.tighten(200.0)
+
+        def cold_taut():
+            rig._q_guess = rig.model.qpos_spring.copy()
+            rig.solve()
+
+        for name, fn, repeats in (
+            ("cold unloaded", cold_unloaded, 20),
+            ("tighten", tighten, 20),
+            ("cold taut", cold_taut, 20),
+            ("warm", rig.solve, 20),
+        ):
+            _counted(rig, fn, counts[name])
+            times[name].append(median_time(fn, repeats))
+
+    q = rig.solve().qpos_all
+    t_res = median_time(lambda: rig.generalized_force(q), 200)
+    t_tan = median_time(lambda: rig.tangent_stiffness(q), 100)
+    t_read = median_time(lambda: rig._readout(q, 0.0, 0), 100)
     print(
-        f"  cold start from the commanded pose: {np.median(cold) * 1e6:8.1f} us  ({np.median(iters):.0f} Newton iterations)"
+        "static equilibrium of the KR60, 20 poses, median over poses of medians of 20 repeats (machine shared):"
     )
-    print(f"  warm start (previous equilibrium):  {np.median(warm) * 1e6:8.1f} us")
     print(
-        f"  tighten to 200 N (secant on the rest length, slack solve included): {np.median(tighten) * 1e3:6.2f} ms"
+        f"  one residual {t_res * 1e6:.1f} us, one tangent (mjd_inverseFD) {t_tan * 1e6:.1f} us, readout {t_read * 1e6:.1f} us"
     )
     print(
-        "  bound: ~2 us per residual (5 MuJoCo calls); a finite-difference Jacobian costs 6 residuals; "
-        "Python call overhead dominates"
+        f"  {'stage':14s} {'time':>9s} {'target':>8s} {'work':>8s} {'floor (issue 12)':>28s} {'calls res/tan (median, max)':>28s}  before"
+    )
+    for name in times:
+        res = np.array([c[0] for c in counts[name]])
+        tan = np.array([c[1] for c in counts[name]])
+        work = np.median(res) * t_res + np.median(tan) * t_tan + t_read
+        target = f"{TARGET[name] * 1e6:6.0f} us" if name in TARGET else "       -"
+        floor = f"{FLOOR[name][0] * 1e6:.0f} us, {FLOOR[name][1]}" if name in FLOOR else "-"
+        before = f"{BEFORE[name][0] * 1e6:.0f} us, {BEFORE[name][1]} residuals" if name in BEFORE else "-"
+        print(
+            f"  {name:14s} {np.median(times[name]) * 1e6:6.1f} us {target} {work * 1e6:5.1f} us {floor:>28s} "
+            f"{np.median(res):6.0f}/{np.median(tan):.0f} ({res.max()}/{tan.max()}){'':>12s}  {before}"
+        )
+    feasible, overloaded, failed = _random_tests()
+    print(
+        f"random tests (pose in the limits, any hook and ring, 1-990 N): {feasible - failed}/{feasible} "
+        f"sensor-feasible tests converged ({failed} failures; {overloaded} draws overloaded the sensor)"
     )
 
 

@@ -41,7 +41,7 @@ def main() -> None:
         "physics": "static equilibria + tightening (MuJoCo)",
         "scan": "scanner placement, ray casting (mj_multiRay) and noise",
         "write": "PLY files and dataset rows",
-        "process": "reading PLYs and fitting block frames (open3d)",
+        "process": "reading PLYs and fitting block frames (nominal segmentation + SVD; open3d RANSAC as fallback)",
         "identify": "stacked least squares",
         "report": "convergence study (n = 1..N), validation, figures",
     }

@@ -1,5 +1,6 @@
 """PLY point-cloud files: round trips in m and mm, against the bytes and text an independent
-reader sees, and the errors for missing, empty and malformed input."""
+reader sees (numpy, open3d's reader and writer), and the errors for missing, empty and malformed
+input."""
 
 from __future__ import annotations
 
@@ -63,13 +64,85 @@ def test_a_lab_file_in_mm_reads_as_metres(tmp_path):
     np.testing.assert_array_equal(read_ply(path), pts_mm)
 
 
-def test_ascii_files_hold_six_significant_digits(tmp_path):
+def test_ascii_files_read_back_exactly(tmp_path):
     pts = _synthetic_points(50)
     path = write_ply(tmp_path / "a.ply", pts, binary=False)
     text = path.read_text().split("end_header\n")[1]
     body = np.loadtxt(text.splitlines())
-    np.testing.assert_allclose(body, pts, rtol=5e-6, atol=0)  # open3d writes %g
-    np.testing.assert_array_equal(read_ply(path), body)
+    np.testing.assert_array_equal(body, pts)  # 17 significant digits: every double exactly
+    np.testing.assert_array_equal(read_ply(path), pts)
+
+
+def _open3d():
+    from vtestbed._open3d import o3d
+
+    return o3d
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_open3d_reads_our_files_and_we_read_open3d_files(tmp_path, binary):
+    """open3d (the reference PLY implementation the project used before) agrees both ways."""
+    o3d = _open3d()
+    pts = _synthetic_points(300)
+    ours = write_ply(tmp_path / "ours.ply", pts, binary=binary)
+    theirs = np.asarray(o3d.io.read_point_cloud(str(ours), format="ply").points)
+    # open3d parses ASCII numbers with its own strtod: within 1 ulp of ours
+    np.testing.assert_allclose(theirs, pts, rtol=3e-16 if not binary else 0, atol=0)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    cloud.colors = o3d.utility.Vector3dVector(np.random.default_rng(2).random((len(pts), 3)))
+    cloud.normals = o3d.utility.Vector3dVector(np.tile([0.0, 0.0, 1.0], (len(pts), 1)))
+    path = str(tmp_path / "theirs.ply")
+    assert o3d.io.write_point_cloud(path, cloud, write_ascii=not binary)
+    reference = np.asarray(o3d.io.read_point_cloud(path, format="ply").points)
+    np.testing.assert_allclose(read_ply(path), reference, rtol=3e-16, atol=0)
+    if binary:  # the doubles themselves
+        np.testing.assert_array_equal(read_ply(path), pts)
+
+
+def test_float32_big_endian_and_faces_read_as_open3d_reads_them(tmp_path):
+    """A lab's scanner file: float32 coordinates, intensities, a face element after the vertices."""
+    rng = np.random.default_rng(3)
+    pts = rng.normal(0.0, 100.0, (40, 3)).astype(np.float32)
+    for order, fmt in (("<", "binary_little_endian"), (">", "binary_big_endian")):
+        table = np.zeros(
+            40, dtype=[("i", order + "u1"), ("x", order + "f4"), ("y", order + "f4"), ("z", order + "f4")]
+        )
+        table["i"], table["x"], table["y"], table["z"] = 7, pts[:, 0], pts[:, 1], pts[:, 2]
+        header = (
+            f"ply\nformat {fmt} 1.0\nelement vertex 40\nproperty uchar intensity\nproperty float x\n"
+            "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        )
+        face = np.array([3], dtype="u1").tobytes() + np.array([0, 1, 2], dtype=order + "i4").tobytes()
+        path = tmp_path / f"{fmt}.ply"
+        path.write_bytes(header.encode() + table.tobytes() + face)
+        np.testing.assert_array_equal(read_ply(path, "mm"), pts.astype(float) * 1e-3)
+        if order == "<":  # open3d reads little-endian files: the same doubles
+            reference = np.asarray(_open3d().io.read_point_cloud(str(path), format="ply").points)
+            np.testing.assert_array_equal(read_ply(path), reference)
+
+
+def test_malformed_and_truncated_files_name_the_problem(tmp_path):
+    pts = _synthetic_points(10)
+    raw = write_ply(tmp_path / "a.ply", pts).read_bytes()
+    (tmp_path / "cut.ply").write_bytes(raw[:-8])
+    with pytest.raises(
+        DatasetError, match=r"cut\.ply: truncated: the header announces 10 vertices, the file holds 9"
+    ):
+        read_ply(tmp_path / "cut.ply")
+    (tmp_path / "noxyz.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nend_header\n1\n"
+    )
+    with pytest.raises(DatasetError, match="has no x, y, z properties"):
+        read_ply(tmp_path / "noxyz.ply")
+    (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nbogus\n")
+    with pytest.raises(DatasetError, match="malformed PLY header line 'bogus'"):
+        read_ply(tmp_path / "bad.ply")
+    (tmp_path / "text.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\n" + "".join(
+        f"property double {c}\n" for c in "xyz") + "end_header\n1 2 3\n4 five 6\n")  # fmt: skip
+    with pytest.raises(DatasetError, match="a vertex line that is not 3 numbers"):
+        read_ply(tmp_path / "text.ply")
+    with pytest.raises(DatasetError, match="could not write the point cloud file"):
+        write_ply(tmp_path / "no" / "such" / "dir.ply", pts)
 
 
 def test_bad_points_units_and_files_are_refused(tmp_path):

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import re
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -67,6 +72,9 @@ def _frame_error(fitted: np.ndarray, true: np.ndarray) -> np.ndarray:
     return np.concatenate([rot.T @ (fitted[:3, 3] - true[:3, 3]), rotation_vector(rot.T @ fitted[:3, :3])])
 
 
+RANSAC = FitParams(method="ransac")  # today's fallback alone, for comparison
+
+
 def _rough(pose: np.ndarray) -> np.ndarray:
     """A nominal pose as a lab knows it: 4 mm and 2 deg off."""
     return pose @ homogeneous(
@@ -80,8 +88,11 @@ def test_noise_free_frames_and_displacement_match_mujoco(world):
     f1 = fit_block_frame(h1.points_m, f0)
     for fit, true in ((f0, t0), (f1, t1)):
         err = _frame_error(fit.pose, true)
-        assert np.abs(err[:3]).max() < 1e-9 and np.abs(err[3:]).max() < 1e-9
+        assert np.abs(err[:3]).max() < 1e-12 and np.abs(err[3:]).max() < 1e-12
         assert fit.counts.min() > 14000 and fit.rms_residual_m.max() < 1e-12
+        assert (fit.method, fit.fallback_reason) == ("fast", "")
+        old = fit_block_frame(h0.points_m if fit is f0 else h1.points_m, _rough(true), RANSAC)
+        assert old.method == "ransac" and np.abs(_frame_error(old.pose, true)).max() < 1e-12
     s0, s1 = world["states"]
     true_base = displacement(s0.block_pose, s1.block_pose)
     measured = block_displacement(f0, f1, world["scanner"].pose_world)
@@ -221,11 +232,128 @@ def test_same_seed_same_frame_also_through_ply(world, tmp_path):
     assert np.array_equal(poses[0], poses[1]) and not np.array_equal(poses[0], poses[2])
     # open3d draws RANSAC samples in parallel threads; the refined frame must not depend on them
     points = noise.apply(hits, np.random.default_rng(7))
-    others = [fit_block_frame(points, _rough(true), rng=np.random.default_rng(s)).pose for s in range(10)]
+    others = [fit_block_frame(points, _rough(true), RANSAC, np.random.default_rng(s)).pose for s in range(10)]
     assert all(np.array_equal(p, others[0]) for p in others)
     # nor on the rounding of the nominal pose (e.g. a scanner pose stored as a rotation vector)
     nudged = _rough(true) @ homogeneous(matrix_from_rotation_vector([1e-12, -2e-12, 1e-12]), [1e-13, 0, 0])
-    assert np.array_equal(fit_block_frame(points, nudged).pose, others[0])
+    assert np.array_equal(fit_block_frame(points, nudged, RANSAC).pose, others[0])
+    assert np.array_equal(fit_block_frame(points, nudged).pose, fit_block_frame(points, _rough(true)).pose)
     rng = np.random.default_rng(7)
     path = write_ply(tmp_path / "scan.ply", noise.apply(hits, rng))
     assert np.array_equal(fit_block_frame(read_ply(path), _rough(true), rng=rng).pose, poses[0])
+
+
+def _rms(errors: np.ndarray) -> tuple[float, float]:
+    """RMS length of the origin error [m] and of the rotation error [rad] over rows of (n, 6)."""
+    return tuple(
+        float(np.sqrt(np.mean(np.sum(errors[:, s] ** 2, axis=1)))) for s in (slice(0, 3), slice(3, 6))
+    )
+
+
+def test_fast_path_is_as_accurate_as_ransac_against_the_truth(world):
+    """Default scanner noise without the drift (which moves both fits alike): outliers, dropouts,
+    grazing growth, the wrist and the wire in view; both paths on the same clouds."""
+    noise = ScanNoise(drift_translation_std_m=0.0, drift_rotation_std_rad=0.0)
+    errors = {"fast": [], "ransac": []}
+    for seed in range(12):
+        for k in range(2):
+            hits, true = world["hits"][k], world["true"][k]
+            points = noise.apply(hits, np.random.default_rng(100 * k + seed))
+            for params in (FitParams(), RANSAC):
+                fit = fit_block_frame(points, _rough(true), params, np.random.default_rng(seed))
+                errors[fit.method].append(_frame_error(fit.pose, true))
+    assert len(errors["fast"]) == len(errors["ransac"]) == 24
+    fast, old = _rms(np.array(errors["fast"])), _rms(np.array(errors["ransac"]))
+    assert fast[0] <= 1.05 * old[0] and fast[1] <= 1.05 * old[1], (fast, old)
+    assert fast[0] < 1e-6 and fast[1] < 1e-5  # sub-um, a few urad (per-point noise only)
+
+
+def _turned(pose: np.ndarray, deg: float, axis=(1.0, 1.0, 1.0), about_centre: bool = False) -> np.ndarray:
+    """``pose`` turned by ``deg`` about ``axis`` (B's axes) through B's corner or the block centre."""
+    turn = homogeneous(
+        matrix_from_rotation_vector(np.radians(deg) * np.asarray(axis) / np.linalg.norm(axis)), np.zeros(3)
+    )
+    centre = homogeneous(np.eye(3), np.full(3, -0.04)) if about_centre else np.eye(4)
+    return pose @ centre @ turn @ invert(centre)
+
+
+@pytest.mark.parametrize(
+    ("deg", "axis", "about_centre", "reason"),
+    [
+        (30.0, (1, 1, 1), False, r"robust plane residual .*RANSAC search, 30\.0 deg from the nominal"),
+        (30.0, (1, -1, 0), True, r"RANSAC search, 30\.0 deg from the nominal"),
+        (5.0, (0, 0, 1), False, r"^the nominal pose is 5\.00 deg and 0\.00 mm from the fitted frame"),
+    ],
+)
+def test_a_nominal_pose_far_off_falls_back_to_ransac_and_still_fits(world, deg, axis, about_centre, reason):
+    hits, true = world["hits"][0], world["true"][0]
+    nominal = _turned(true, deg, axis, about_centre)
+    angle = np.degrees(np.linalg.norm(rotation_vector(true[:3, :3].T @ nominal[:3, :3])))
+    assert angle == pytest.approx(deg, abs=1e-9)
+    fit = fit_block_frame(hits.points_m, nominal)  # noise-free: the exact frame, whichever path
+    assert fit.method == "ransac" and re.search(reason, fit.fallback_reason), fit.fallback_reason
+    assert np.abs(_frame_error(fit.pose, true)).max() < 1e-12
+    points = ScanNoise(drift_translation_std_m=0.0, drift_rotation_std_rad=0.0).apply(
+        hits, np.random.default_rng(3)
+    )
+    fast = fit_block_frame(points, true)
+    assert fast.method == "fast"
+    noisy = fit_block_frame(points, nominal, rng=np.random.default_rng(3))
+    assert noisy.method == "ransac"
+    err = _frame_error(noisy.pose, true)  # a few sigma of the noise-only scatter (0.3 um, 3.5 urad)
+    assert np.abs(err[:3]).max() < 2e-6 and np.abs(err[3:]).max() < 2e-5
+    with pytest.raises(ScanError):  # the fast path alone refuses
+        fit_block_frame(points, nominal, FitParams(method="fast"))
+
+
+def test_a_rough_face_falls_back_to_ransac(world):
+    """A face rougher than fast_max_sigma_m (0.1 mm): the fast path hands over, RANSAC fits it."""
+    hits, true = world["hits"][0], world["true"][0]
+    q = (hits.points_m - true[:3, 3]) @ true[:3, :3]
+    on_z = np.abs(q[:, 2]) < 1e-9
+    bumps = np.random.default_rng(5).normal(0.0, 0.2e-3, on_z.sum())
+    points = hits.points_m.copy()
+    points[on_z] += bumps[:, None] * true[:3, 2]  # 0.2 mm along the face normal
+    fit = fit_block_frame(points, _rough(true))
+    assert fit.method == "ransac" and "face +z: robust plane residual" in fit.fallback_reason
+    # least squares on about 15 000 points of 0.2 mm scatter: the +z normal to ~1e-4 rad
+    err = _frame_error(fit.pose, true)
+    assert np.abs(err[:3]).max() < 2e-5 and np.abs(err[3:]).max() < 2e-4
+    assert fit.rms_residual_m[2] == pytest.approx(0.2e-3, rel=0.1)
+
+
+def test_fit_methods_are_checked():
+    with pytest.raises(OutOfRangeError, match=r"method = 'svd' is not one of auto, fast, ransac"):
+        FitParams(method="svd")
+    with pytest.raises(
+        OutOfRangeError, match=r"fast_max_offset_m = 0.2 m is outside the valid range \[0, 0.08\]"
+    ):
+        FitParams(fast_max_offset_m=0.2)
+
+
+_WORKER = """
+import json, sys
+import numpy as np
+from vtestbed.researcher.cloud import fit_block_frame
+points, nominal = np.load(sys.argv[1]), np.load(sys.argv[2])
+fit = fit_block_frame(points, nominal)
+print(json.dumps({"method": fit.method, "open3d": "open3d" in sys.modules, "pose": fit.pose.tolist()}))
+"""
+
+
+def test_the_fast_path_does_not_import_open3d(world, tmp_path):
+    """A fresh worker that fits with the fast path never loads open3d; one that falls back does."""
+    hits, true = world["hits"][0], world["true"][0]
+    points = ScanNoise().apply(hits, np.random.default_rng(0))
+    np.save(tmp_path / "points.npy", points)
+    runs = {}
+    for name, nominal in (("good", _rough(true)), ("far", _turned(true, 30.0))):
+        np.save(tmp_path / f"{name}.npy", nominal)
+        out = subprocess.run([sys.executable, "-c", _WORKER, str(tmp_path / "points.npy"), str(tmp_path / f"{name}.npy")],
+                             capture_output=True, text=True, check=True, timeout=300)  # fmt: skip
+        runs[name] = json.loads(out.stdout.strip().splitlines()[-1])
+    assert (runs["good"]["method"], runs["good"]["open3d"]) == ("fast", False)
+    assert (runs["far"]["method"], runs["far"]["open3d"]) == ("ransac", True)
+    expected = fit_block_frame(points, _rough(true)).pose  # the same numbers in this process
+    assert np.array_equal(np.array(runs["good"]["pose"]), expected)
+    assert np.abs(np.array(runs["far"]["pose"]) - expected).max() < 1e-6

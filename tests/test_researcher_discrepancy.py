@@ -200,3 +200,38 @@ def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, truth, tmp_p
     bad.write_text(model.read_text().replace('"kuka_kr60_3"', '"ur10"'))
     with pytest.raises(DatasetError, match="robot = 'ur10' does not match the dataset's robot 'kuka_kr60_3'"):
         identify_with_model(hidden_dataset, bad)
+
+
+def test_geometric_error_candidate_recovers_the_worlds_dh_deviations(paper, truth):
+    """World: a DH table off by tenths of a degree and millimetres (10x an uncalibrated arm's, so
+    that the scanner's noise could see it). The opt-in candidate, on the exact-statics baseline,
+    recovers the deviations from the deflections alone and removes the stiffness bias."""
+    from vtestbed.researcher.statics import ExactStatics
+    from vtestbed.world.effects import GeometricError
+
+    dtheta = (0.0, 0.4, -0.5, 0.3, 0.2, -0.3)
+    effect = GeometricError(da_mm=(0, 0, -3.0, 1.5, 0, 0), dd_mm=(0, 0, 0, -2.5, 0, 1.0),
+                            dalpha_deg=(0.0,) * 6, dtheta_deg=dtheta)  # fmt: skip
+    setup, kin, ms = world_measurements(paper, (effect,), n=20)
+    ctx = ModelContext(ms, setup, kin, ExactStatics(kin, setup))
+    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=100, n_tests=10))
+    (term,) = candidates(kin, ("geometric_error",))
+    base, fit = fit_model(ctx, white, []), fit_model(ctx, white, [term])
+    assert base.chi2 > 10.0 and fit.chi2 < 1e-3 * base.chi2
+    got = fit.theta["geometric_error"]
+    np.testing.assert_allclose(
+        [np.degrees(got[f"dtheta{j}_rad"]) for j in range(2, 7)], dtheta[1:], atol=0.02
+    )
+    np.testing.assert_allclose([got["da3_m"], got["da4_m"], got["dd4_m"], got["dd6_m"]],
+                               [-3.0e-3, 1.5e-3, -2.5e-3, 1.0e-3], atol=2.5e-4)  # fmt: skip
+    assert np.max(np.abs(base.stiffness / truth.stiffness - 1)) > 0.02  # the gap it leaves unnamed
+    np.testing.assert_allclose(fit.stiffness, truth.stiffness, rtol=5e-4)
+
+
+def test_geometric_error_is_opt_in_and_named_in_the_unknown_name_error():
+    from vtestbed.researcher.candidates import CANDIDATE_NAMES, OPTIONAL_CANDIDATE_NAMES
+
+    assert "geometric_error" in OPTIONAL_CANDIDATE_NAMES and "geometric_error" not in CANDIDATE_NAMES
+    kin = ArmKinematics(load_scenario(PAPER).robot)
+    with pytest.raises(UnknownNameError, match=r"valid names: .*geometric_error"):
+        candidates(kin, ("geometric",))

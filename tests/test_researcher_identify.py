@@ -1,10 +1,13 @@
-"""Identification core against closed forms and Monte Carlo on the linear model."""
+"""Identification core against closed forms, dense-matrix references and Monte Carlo on the
+linear model."""
+
+import warnings
 
 import numpy as np
 import pytest
 
 from vtestbed.errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
-from vtestbed.researcher.identify import a_matrix, identify, stack
+from vtestbed.researcher.identify import a_matrix, identify, identify_prefixes, stack
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.world.truth import load_truth
 
@@ -107,6 +110,10 @@ def test_bad_inputs(robot, lab, rng):
         identify(jac, wrench, np.zeros((2, 6)))
     with pytest.raises(OutOfRangeError, match="wls needs displacement_cov|'wls' needs"):
         identify(jac, wrench, d, method="wls")
+    with pytest.raises(OutOfRangeError, match=r"displacement_cov must be finite, \(6, 6\) or \(3, 6, 6\)"):
+        identify(jac, wrench, d, method="wls", displacement_cov=np.eye(5))
+    with pytest.raises(OutOfRangeError, match="displacement_cov must be symmetric positive definite"):
+        identify(jac, wrench, d, method="wls", displacement_cov=-np.eye(6))
     kin = ArmKinematics(robot, lab.block_in_flange)
     singular = jac.copy()
     singular[0] = kin.jacobian(np.radians([0, -60, -20, 30, 0, 45]), frame="tool")  # wrist: theta5 = 0
@@ -123,3 +130,105 @@ def test_tests_that_barely_load_a_joint_are_flagged_ill_conditioned(robot, lab, 
     with pytest.warns(UserWarning, match="ill-conditioned"):
         res = identify(jac, wrench, d, method="ols")
     assert res.condition_number > 1e3
+
+
+def _dense_fgls(a, d, iterations=5):
+    """FGLS with an explicit dense (6 T, 6 T) whitening matrix, solved by LAPACK's lstsq: the
+    textbook form the estimator must reproduce. Returns c, (A^T W A)^-1 and the whitening."""
+    n_tests, n = d.size // 6, a.shape[1]
+    comp_std = np.ones(6)
+    for it in range(iterations):
+        whiten = np.kron(np.eye(n_tests), np.diag(1.0 / comp_std))  # dense, block diagonal
+        c = np.linalg.lstsq(whiten @ a, whiten @ d, rcond=None)[0]
+        if it < iterations - 1:  # noisy data: the exact-fit fallback and variance floor never act
+            res = (d - a @ c).reshape(n_tests, 6)
+            comp_std = np.sqrt(np.sum(res**2, axis=0) / (n_tests - n / 6.0))
+    aw = whiten @ a
+    return c, np.linalg.inv(aw.T @ aw), whiten
+
+
+def _dense_reference(a, d, iterations=5):
+    """compliance, covariance and chi2 of FGLS the slow way: analytic covariance scaled by
+    chi2 below 8 tests, else the delete-one-test jackknife of full dense refits."""
+    n_tests, n = d.size // 6, a.shape[1]
+    c, inv_normal, whiten = _dense_fgls(a, d, iterations)
+    white = whiten @ (d - a @ c)
+    chi2 = white @ white / (6 * n_tests - n)
+    if n_tests < 8:
+        return c, inv_normal * chi2, chi2
+    # Each refit fits the full fit's residuals e = d - A c: the model is linear, so that gives
+    # c_t - c directly, with round-off relative to that small step rather than to c.
+    e = d - a @ c
+    steps = []
+    for t in range(n_tests):
+        keep = np.r_[0 : 6 * t, 6 * t + 6 : 6 * n_tests]
+        steps.append(_dense_fgls(a[keep], e[keep], iterations)[0])
+    dev = np.array(steps) - np.mean(steps, axis=0)
+    return c, (n_tests - 1) / n_tests * dev.T @ dev, chi2
+
+
+@pytest.mark.parametrize("n_tests", [6, 9, 14])
+def test_fgls_matches_a_dense_matrix_reference(robot, lab, n_tests):
+    rng = np.random.default_rng(40 + n_tests)
+    jac, wrench = _tests(robot, lab, rng, n_tests)
+    a = stack(jac, wrench)
+    # unequal noise per component, so that the estimated weights matter
+    d = a @ (1.0 / K_TRUE) + (rng.normal(size=(n_tests, 6)) * SIGMA * [5, 1, 3, 5, 1, 3]).ravel()
+    res = identify(jac, wrench, d.reshape(n_tests, 6))
+    c_ref, cov_ref, chi2_ref = _dense_reference(a, d)
+    np.testing.assert_allclose(res.compliance, c_ref, rtol=1e-12)
+    assert np.linalg.norm(res.compliance_cov - cov_ref) < 1e-12 * np.linalg.norm(cov_ref)
+    std_ref = np.sqrt(np.diag(cov_ref)) / c_ref**2  # delta method: std(k) = std(c) / c^2
+    np.testing.assert_allclose(res.stiffness_std, std_ref, rtol=1e-12)
+    assert res.chi2_reduced == pytest.approx(chi2_ref, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["ols", "wls"])
+def test_ols_and_wls_match_a_dense_matrix_reference(robot, lab, method):
+    rng = np.random.default_rng(8)
+    jac, wrench = _tests(robot, lab, rng, 10)
+    a = stack(jac, wrench)
+    # a different, correlated covariance per test (translation and rotation noise coupled)
+    mix = np.eye(6) + 0.3 * rng.normal(size=(10, 6, 6))
+    sigma = mix @ np.diag(SIGMA**2) @ mix.transpose(0, 2, 1)
+    d = a @ (1.0 / K_TRUE) + np.einsum("tij,tj->ti", mix, rng.normal(size=(10, 6)) * SIGMA).ravel()
+    if method == "wls":
+        weight = np.zeros((60, 60))  # dense block-diagonal Sigma^-1
+        for t in range(10):
+            weight[6 * t : 6 * t + 6, 6 * t : 6 * t + 6] = np.linalg.inv(sigma[t])
+        cov_ref = np.linalg.inv(a.T @ weight @ a)
+        c_ref = cov_ref @ a.T @ weight @ d
+        res = identify(jac, wrench, d.reshape(10, 6), method="wls", displacement_cov=sigma)
+        r = d - a @ c_ref
+        assert res.chi2_reduced == pytest.approx(r @ weight @ r / 54, rel=1e-10)
+    else:
+        c_ref = np.linalg.lstsq(a, d, rcond=None)[0]
+        r = d - a @ c_ref
+        cov_ref = np.linalg.inv(a.T @ a) * (r @ r) / 54
+        res = identify(jac, wrench, d.reshape(10, 6), method="ols")
+    np.testing.assert_allclose(res.compliance, c_ref, rtol=1e-10)
+    assert np.linalg.norm(res.compliance_cov - cov_ref) < 1e-10 * np.linalg.norm(cov_ref)
+    np.testing.assert_allclose(res.stiffness_std, np.sqrt(np.diag(cov_ref)) / c_ref**2, rtol=1e-10)
+
+
+def test_prefixes_are_the_fits_on_the_first_n_tests(robot, lab):
+    rng = np.random.default_rng(9)
+    jac, wrench = _tests(robot, lab, rng, 10)
+    d = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(10, 6) + rng.normal(size=(10, 6)) * SIGMA
+    sigma = np.diag(SIGMA**2) * rng.uniform(0.5, 2.0, (10, 1, 1))
+    for method, cov in (("fgls", None), ("wls", sigma)):
+        fits = identify_prefixes(jac, wrench, d, method=method, displacement_cov=cov)
+        assert [f.n_tests for f in fits] == list(range(1, 11))
+        for n in (2, 8, 10):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                one = identify(
+                    jac[:n],
+                    wrench[:n],
+                    d[:n],
+                    method=method,
+                    displacement_cov=None if cov is None else cov[:n],
+                )
+            np.testing.assert_array_equal(fits[n - 1].stiffness, one.stiffness)
+            np.testing.assert_array_equal(fits[n - 1].stiffness_std, one.stiffness_std)
+            assert fits[n - 1].warnings == one.warnings

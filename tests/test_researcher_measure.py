@@ -26,6 +26,7 @@ from vtestbed.researcher.measure import (
     predict_displacement,
     wrench_at_block,
 )
+from vtestbed.transforms import invert
 from vtestbed.world import mjcf
 from vtestbed.world.physics import run_test_physics
 from vtestbed.world.rig import Rig
@@ -129,6 +130,25 @@ def test_displacement_is_mujocos_block_motion_in_the_block_frame(measured):
     truth = np.r_[r0.T @ (p1[:3, 3] - p0[:3, 3]), Rotation.from_matrix(r0.T @ p1[:3, :3]).as_rotvec()]
     np.testing.assert_allclose(m.displacement, truth, rtol=0, atol=1e-9)
     assert np.linalg.norm(truth[:3]) > 1e-4  # a real displacement (0.1 mm and more)
+    assert m.fit_methods == ("fast", "fast")  # the nominal kinematics place the block well enough
+
+
+def test_a_miscalibrated_scanner_pose_falls_back_to_ransac_for_the_unloaded_scan(measured, robot, lab):
+    """A recorded scanner pose 25 deg off about the block: the unloaded fit falls back (and is
+    right), the loaded one starts from it and takes the fast path; the same displacement."""
+    _, phys, m = measured
+    corner = invert(phys.scanner.pose_world) @ phys.unloaded.block_pose  # B in the scanner frame
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec(np.radians(25.0) * np.array([0.6, 0.0, 0.8])).as_matrix()
+    about = corner @ turn @ invert(corner)  # a rotation about B's origin, scanner frame
+    wrong = phys.scanner.pose_world @ invert(about)  # so the nominal block is turned by 25 deg
+    record = Record("T008", "identification", np.degrees(phys.unloaded.q_cmd), phys.unloaded.sensor_wrench,
+                    phys.loaded.sensor_wrench, wrong, Path(), Path())  # fmt: skip
+    kin = ArmKinematics(robot, lab.block_in_flange)
+    off = measure_arrays(record, phys.hits_unloaded.points_m, phys.hits_loaded.points_m, _setup(lab), kin)
+    assert off.fit_methods == ("ransac", "fast")
+    np.testing.assert_allclose(off.frame_unloaded, m.frame_unloaded, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(off.displacement, m.displacement, rtol=0, atol=1e-12)
 
 
 def test_wrench_is_the_wire_force_at_the_block_in_its_axes(measured):

@@ -54,6 +54,11 @@ def test_convergence_row_n_is_the_identification_on_the_first_n_tests(robot, lab
     np.testing.assert_allclose(conv["stiffness"][-1], K_TABLE5, rtol=0.1)
 
 
+def test_convergence_without_identification_tests_is_empty(robot, lab):
+    val = _measurements(robot, lab, 3, "validation")
+    assert convergence(val, "fgls", robot.joint_names) == {"n": [], "stiffness": [], "stiffness_std": []}
+
+
 def test_noise_free_convergence_is_table5_from_the_first_test(robot, lab):
     conv = convergence(_measurements(robot, lab, 5, noise=False), "fgls", robot.joint_names)
     for row in conv["stiffness"]:

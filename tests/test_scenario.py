@@ -57,7 +57,7 @@ def _broken(data, path, value):
         (
             ("identification", "method"),
             "lasso",
-            r"identification.method: 'lasso' is not one of ols, wls, fgls",
+            r"identification.method: 'lasso' is not one of ols, fgls",
         ),
         (("seed",), -1, r"seed: must be a non-negative integer"),
         (("robot",), "ur5", r"robot: unknown robot 'ur5'; valid names: kuka_kr60_3"),
@@ -82,3 +82,38 @@ def test_file_level_errors(tmp_path):
     bad.write_text("name = [unclosed\n")
     with pytest.raises(ScenarioError, match="not valid TOML"):
         load_scenario(bad)
+
+
+def _with_a5(paper_data, index: int, a5_deg: float) -> dict:
+    data = copy.deepcopy(paper_data)
+    data["poses"]["angles_deg"][index][4] = a5_deg
+    return data
+
+
+@pytest.mark.parametrize("a5_deg", [0.0, 0.2, -0.3])
+def test_singular_pose_is_refused_at_load(paper_data, a5_deg):
+    # A5 = 0 is the KR60's wrist singularity (joints 4 and 6 aligned); within about 0.33 deg of
+    # it the scaled Jacobian's sigma_min/sigma_max falls below NEAR_SINGULAR.
+    with pytest.raises(ScenarioError, match=r"poses\.angles_deg\[3\]: the pose is at or near a singularity"):
+        parse_scenario(_with_a5(paper_data, 3, a5_deg))
+
+
+def test_pose_a_degree_from_the_wrist_singularity_is_accepted(paper_data):
+    assert parse_scenario(_with_a5(paper_data, 3, 1.0)).n_tests == 20
+
+
+def test_jacobian_conditioning_matches_pinocchio():
+    from vtestbed.lab import PAPER_LAB
+    from vtestbed.researcher.kinematics import ArmKinematics
+    from vtestbed.robots import JACOBIAN_LENGTH_SCALE_M, load_robot
+
+    robot = load_robot("kuka_kr60_3")
+    arm = ArmKinematics(robot, PAPER_LAB.block_in_flange)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q = robot.random_pose(rng)
+        jac = arm.jacobian(q)
+        jac[:3] /= JACOBIAN_LENGTH_SCALE_M
+        s = np.linalg.svd(jac, compute_uv=False)
+        ours = robot.jacobian_conditioning(q, PAPER_LAB.block_in_flange[:3, 3])
+        assert ours == pytest.approx(s[-1] / s[0], rel=1e-9, abs=1e-14)

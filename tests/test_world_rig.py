@@ -61,7 +61,9 @@ def test_small_wrench_displacement_matches_linear_compliance_model(rig_no_gravit
 def test_static_solver_residual_and_dynamic_settle_agree(rig):
     rig.hook("hook_x", "ring_5")
     state = rig.tighten(250.0)
-    assert state.residual < 1e-8
+    # the solver's own test: every residual component within its round-off tolerance
+    assert np.all(np.abs(rig.generalized_force(state.qpos_all)) <= rig.residual_tolerance(state.qpos_all))
+    assert state.residual < 1e-7  # N*m: about 1e-14 rad of the stiff joints
     settled = rig.settle(duration=3.0)  # from the commanded pose, mj_step with damping
     assert np.abs(settled.qpos_all - state.qpos_all).max() < 1e-8
     assert abs(settled.wire_tension - state.wire_tension) < 1e-3
@@ -79,7 +81,7 @@ def test_static_solver_residual_and_dynamic_settle_agree(rig):
 def test_tighten_reaches_target_tension(rig, anchor, hook, tension):
     rig.hook(hook, anchor)
     state = rig.tighten(tension)
-    assert abs(state.wire_tension - tension) < 0.1
+    assert abs(state.wire_tension - tension) < 1e-8  # the tension is held, then the rest length set
     # independent: tension from Hooke's law on the wire's geometric length (MuJoCo site positions)
     anchor_pos = rig.lab.table.anchor(anchor)
     length = np.linalg.norm(anchor_pos - state.hook_position)

@@ -60,6 +60,11 @@ class DatasetError(VtestbedError, ValueError):
     """A measurement dataset that is missing files or is inconsistent."""
 
 
+class ImplausibleDataError(DatasetError):
+    """Measurements that no wire load on the block could produce (with ``--strict``; otherwise a
+    warning on the result)."""
+
+
 class ScanError(VtestbedError, ValueError):
     """A scan that cannot deliver the block frame (block out of view, faces missing)."""
 

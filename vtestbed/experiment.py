@@ -67,6 +67,25 @@ class Timings:
         return {k: round(v, 4) for k, v in self.__dict__.items()}
 
 
+VERSIONED = ("numpy", "scipy", "mujoco", "pin", "open3d")
+
+
+def versions() -> dict[str, str]:
+    """The versions that shape a run's numbers (read from the installed metadata, no imports)."""
+    import platform
+    from importlib import metadata
+
+    from . import __version__
+
+    out = {"vtestbed": __version__, "python": platform.python_version()}
+    for name in VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
 def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
     return DatasetSetup(
         robot=scenario.robot_name,
@@ -233,9 +252,17 @@ def simulate(
 
 
 def identify_dataset(
-    root: str | Path, method: str = "fgls", progress: bool = False, timings: Timings | None = None
+    root: str | Path,
+    method: str = "fgls",
+    progress: bool = False,
+    timings: Timings | None = None,
+    strict: bool = False,
 ):
-    """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult)."""
+    """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult).
+
+    ``strict``: implausible tests (a block that did not move, moved against or far beyond its
+    load, a force that misses the block) raise instead of warning.
+    """
     timings = timings or Timings()
     bar = None
     if progress:
@@ -254,7 +281,7 @@ def identify_dataset(
         bar.close()
     t1 = time.perf_counter()
     result = identify_measurements(
-        measurements, method=method, joint_names=load_robot(setup.robot).joint_names
+        measurements, method=method, joint_names=load_robot(setup.robot).joint_names, strict=strict
     )
     timings.process += t1 - t0
     timings.identify += time.perf_counter() - t1
@@ -267,12 +294,15 @@ def run(
     progress: bool = False,
     figures: bool = True,
     replace_stale: bool = False,
+    strict: bool = False,
 ) -> dict:
     """simulate + identify + compare; writes ``out/result.json`` and figures; returns the result."""
     out = Path(out)
     timings = Timings()
     simulate(scenario, out / "dataset", progress=progress, timings=timings, replace_stale=replace_stale)
-    setup, measurements, result = identify_dataset(out / "dataset", scenario.method, progress, timings)
+    setup, measurements, result = identify_dataset(
+        out / "dataset", scenario.method, progress, timings, strict=strict
+    )
     t0 = time.perf_counter()
     truth = comparison.read_truth(out / "dataset")
     joints = comparison.compare(result, truth)
@@ -300,6 +330,7 @@ def run(
         "validation": val,
         "figures": files,
         "timings_s": timings.as_dict(),
+        "versions": versions(),
     }
     write_json_atomic(out / "result.json", summary)
     summary["table"] = comparison.table5(joints, ranges, n_tests=result.n_tests)

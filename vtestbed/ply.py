@@ -1,7 +1,12 @@
 """Point-cloud files (PLY) as a dataset stores them: (N, 3) points in the scanner frame.
 
 The world writes the scans with :func:`write_ply`; the researcher reads them with
-:func:`read_ply`, which also takes a lab's files in millimetres. open3d does the file format.
+:func:`read_ply`, which also takes a lab's files in millimetres. The format is read and written
+with numpy alone (no open3d), so a process that only moves clouds through files does not load
+open3d's 170 MB of native code: the vertex element of an ``ascii``, ``binary_little_endian`` or
+``binary_big_endian`` PLY, any scalar property types, extra properties (colours, normals) and
+elements after the vertices (faces) ignored. ``tests/test_ply.py`` checks the files against
+open3d's own reader.
 """
 
 from __future__ import annotations
@@ -10,10 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ._open3d import o3d
 from .errors import DatasetError, OutOfRangeError
 
 _UNITS = {"m": 1.0, "mm": 1e-3}
+# PLY scalar type names (both spellings of the standard) -> numpy type codes without byte order.
+_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}  # fmt: skip
+_ORDER = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "<"}
+_MAX_HEADER_LINES = 10_000  # a real header is a few dozen lines; this bounds a corrupt file
 
 
 def _as_points(points) -> np.ndarray:
@@ -32,14 +45,28 @@ def _unit(length_unit: str) -> float:
 def write_ply(path, points, length_unit: str = "m", binary: bool = True) -> Path:
     """Write (N, 3) points [m] as a PLY file in ``length_unit`` ('m' or 'mm').
 
-    The binary default stores doubles exactly; ``binary=False`` goes through open3d's ASCII
-    writer, which keeps 6 significant digits (about 1 um at 0.6 m): for reading by eye only.
+    The binary default stores little-endian doubles exactly; ``binary=False`` writes text with
+    17 significant digits, which also reads back exactly (and can be read by eye).
     """
     scale = _unit(length_unit)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_as_points(points) / scale))
+    pts = _as_points(points) / scale
+    if len(pts) == 0:
+        raise DatasetError(f"could not write the point cloud file {path}: no points")
+    fmt = "binary_little_endian" if binary else "ascii"
+    header = (
+        f"ply\nformat {fmt} 1.0\ncomment vtestbed, units {length_unit}\nelement vertex {len(pts)}\n"
+        "property double x\nproperty double y\nproperty double z\nend_header\n"
+    )
     path = Path(path)
-    if not o3d.io.write_point_cloud(str(path), cloud, write_ascii=not binary):
-        raise DatasetError(f"could not write the point cloud file {path}")
+    try:
+        with open(path, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            if binary:
+                fh.write(np.ascontiguousarray(pts, dtype="<f8").tobytes())
+            else:
+                np.savetxt(fh, pts, fmt="%.17g")
+    except OSError as exc:
+        raise DatasetError(f"could not write the point cloud file {path}: {exc.strerror or exc}") from None
     return path
 
 
@@ -49,8 +76,98 @@ def read_ply(path, length_unit: str = "m") -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"point cloud file not found: {path}")
-    cloud = o3d.io.read_point_cloud(str(path), format="ply")
-    points = np.asarray(cloud.points) * scale
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DatasetError(f"could not read the point cloud file {path}: {exc.strerror or exc}") from None
+    points = _vertices(raw, path) * scale
     if len(points) == 0:
         raise DatasetError(f"point cloud file {path} holds no points (not a PLY point cloud?)")
     return points
+
+
+def _vertices(raw: bytes, path: Path) -> np.ndarray:
+    """(N, 3) float64 x, y, z of the vertex element; (0, 3) for a file that is not a PLY at all."""
+    empty = np.empty((0, 3))
+    if not raw.startswith(b"ply") or raw[3:4] not in (b"\n", b"\r"):
+        return empty
+    fmt, elements, body = _header(raw, path)
+    skip, vertex = 0, None
+    for name, count, props in elements:
+        if name == "vertex":
+            vertex = (count, props)
+            break
+        if fmt == "ascii":
+            skip += count
+        elif any(kind == "list" for _, kind in props):
+            raise DatasetError(
+                f"{path}: element {name!r} with list properties before the vertices is not supported"
+            )
+        else:
+            skip += count * sum(np.dtype(kind).itemsize for _, kind in props)
+    if vertex is None:
+        return empty
+    count, props = vertex
+    names = [p for p, _ in props]
+    if any(kind == "list" for _, kind in props):
+        raise DatasetError(f"{path}: list properties in the vertex element are not supported")
+    if not {"x", "y", "z"} <= set(names):
+        raise DatasetError(f"{path}: the vertex element has no x, y, z properties (has {', '.join(names)})")
+    if fmt == "ascii":
+        values = _ascii_rows(raw[body:], skip, count, len(props), path)
+        cols = [names.index(c) for c in "xyz"]
+        return values[:, cols].astype(float)
+    order = _ORDER[fmt]
+    dtype = np.dtype([(p, order + kind) for p, kind in props])
+    start = body + skip
+    if len(raw) < start + count * dtype.itemsize:
+        raise DatasetError(
+            f"{path}: truncated: the header announces {count} vertices, the file holds "
+            f"{max(0, len(raw) - start) // dtype.itemsize}"
+        )
+    table = np.frombuffer(raw, dtype=dtype, count=count, offset=start)
+    return np.stack([table[c].astype(float) for c in "xyz"], axis=1)
+
+
+def _header(raw: bytes, path: Path):
+    """(format, [(element, count, [(property, numpy kind or 'list')])], offset of the body)."""
+    fmt, elements, offset = None, [], 0
+    for _ in range(_MAX_HEADER_LINES):
+        end = raw.find(b"\n", offset)
+        if end < 0:
+            break
+        line = raw[offset:end].decode("ascii", "replace").strip()
+        offset = end + 1
+        words = line.split()
+        if not words or words[0] in ("ply", "comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            if fmt is None:
+                raise DatasetError(f"{path}: PLY header without a format line")
+            return fmt, elements, offset
+        if words[0] == "format" and len(words) >= 2 and words[1] in _ORDER:
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements and len(words) == 3 and words[1] in _TYPES:
+            elements[-1][2].append((words[2], _TYPES[words[1]]))
+        elif words[0] == "property" and elements and len(words) == 5 and words[1] == "list":
+            elements[-1][2].append((words[4], "list"))
+        else:
+            raise DatasetError(f"{path}: malformed PLY header line {line[:80]!r}")
+    raise DatasetError(f"{path}: PLY header without end_header")
+
+
+def _ascii_rows(body: bytes, skip: int, count: int, width: int, path: Path) -> np.ndarray:
+    lines = body.split(b"\n", skip + count)[skip : skip + count]
+    if len(lines) < count:
+        raise DatasetError(f"{path}: the header announces {count} vertices, the file holds {len(lines)}")
+    try:  # numpy's C parser: a lab's ASCII scan of 100 k points reads in a fraction of a second
+        values = np.loadtxt(lines, dtype=float, ndmin=2, usecols=range(width), encoding="ascii")
+    except ValueError:
+        raise DatasetError(f"{path}: a vertex line that is not {width} numbers") from None
+    if values.shape != (count, width):
+        raise DatasetError(
+            f"{path}: the header announces {count} vertices of {width} values; the body differs"
+        )
+    return values

@@ -5,6 +5,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+# The six components of a displacement twist [v; w] (m, m, m, rad, rad, rad), and of its rows.
+DISPLACEMENT_COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+
 
 def rot_x(angle: float) -> np.ndarray:
     """Rotation about x by ``angle`` [rad], shape (3, 3)."""

@@ -12,36 +12,26 @@ trials already on disk (rows are keyed by ``trial_key`` and deduplicated on read
 Speed: a worker prepares the physics of a test list once (equilibria and ray casts,
 :func:`vtestbed.campaigns.montecarlo.prepare`) and keeps it in a small cache keyed by the test list, so
 every cell on that list (any noise level, test count or estimator) reuses it; each trial draws
-its own noise and runs the full researcher pipeline (cloud fits, identification).
+its own noise and runs the full researcher pipeline (cloud fits, identification). The worker's
+side is :mod:`vtestbed.campaigns.worker`, which imports none of this module's bookkeeping
+(pandas, pyarrow, the pose-set design code); local workers die with this process.
 """
 
 from __future__ import annotations
 
-import ctypes
-import hashlib
 import math
 import multiprocessing
 import os
-import signal
-import threading
+import sys
 import time
-from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import pandas as pd
-
-from ..errors import VtestbedError
 from ..files import folder_lock
-from ..scenario import Scenario
-from ..world.scan_noise import ScanNoise
-from ..world.sensors import ForceTorqueSensor
-from . import montecarlo
-from .posesets import TestPlan
-from .spec import Campaign, Cell, load_campaign
+from .spec import Campaign, load_campaign
 from .store import (
     TRIALS_DIR,
     SweepError,
@@ -52,37 +42,15 @@ from .store import (
     results,
     write_part,
 )
+from .worker import Batch, BatchResult, init_local_worker, run_batch
 
-CACHE_SIZE = 2  # prepared test lists kept per worker process
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["Batch", "BatchResult", "SweepStats", "run_batch", "sweep"]
+
 SECONDS_PER_TEST = 0.065  # one test of one trial (two noisy clouds, two fits), for batch sizing
 TARGET_BATCH_S = 2.0
-COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
-
-
-@dataclass(frozen=True)
-class Batch:
-    """Trials of one cell: everything a worker needs (small; the physics is prepared there)."""
-
-    scenario: Scenario  # the base scenario
-    plan: TestPlan
-    cell: Cell
-    noise: ScanNoise | None
-    ft_noise_std: tuple[float, ...]
-    trials: tuple[int, ...]
-    seeds: tuple[int, ...]
-
-    @property
-    def name(self) -> str:
-        cell = hashlib.sha256(self.cell.key.encode()).hexdigest()[:12]
-        return f"part-{cell}-{self.trials[0]:06d}-{self.trials[-1]:06d}-{len(self.trials)}"
-
-
-@dataclass(frozen=True)
-class BatchResult:
-    rows: list
-    prepare_s: float  # s spent preparing physics for this batch (0 when cached)
-    compute_s: float  # s spent on the trials
-    pid: int
 
 
 @dataclass
@@ -97,33 +65,10 @@ class SweepStats:
     tests_run: int = 0
     batches: int = 0
     pids: set = field(default_factory=set)
+    worker_peak_rss_mib: float = 0.0  # the largest peak resident memory a worker reported
 
 
-_CACHE: OrderedDict = OrderedDict()
-_LOCK = threading.Lock()
-_TUNED: list = []
 SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
-
-
-def _tune_worker() -> None:
-    """Once per process: undo Dask's ``MALLOC_TRIM_THRESHOLD_`` for our large temporary arrays.
-
-    Dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also switches off
-    glibc's dynamic mmap threshold: every cloud-sized array (about 1 MB) is then a fresh mmap,
-    zeroed and page-faulted, and a trial takes twice as long (measured: 0.87 s instead of 0.47 s).
-    Raising the two thresholds (32 MiB, 256 MiB) restores the normal speed; results are unchanged.
-    """
-    if _TUNED:
-        return
-    _TUNED.append(True)
-    if "MALLOC_TRIM_THRESHOLD_" in os.environ:
-        try:
-            libc = ctypes.CDLL("libc.so.6")
-            libc.mallopt(M_MMAP_THRESHOLD, 32 * 2**20)
-            libc.mallopt(M_TRIM_THRESHOLD, 256 * 2**20)
-        except (OSError, AttributeError):  # not glibc: leave it
-            pass
 
 
 @contextmanager
@@ -146,65 +91,6 @@ def _single_threaded_children():
                 os.environ[k] = v
 
 
-def _prepared(batch: Batch) -> tuple[montecarlo.PreparedScenario, float]:
-    key = batch.scenario.fingerprint + batch.plan.digest
-    with _LOCK:
-        _tune_worker()
-        if key in _CACHE:
-            _CACHE.move_to_end(key)
-            return _CACHE[key], 0.0
-        t0 = time.perf_counter()
-        prepared = montecarlo.prepare(batch.plan.scenario(batch.scenario))
-        _CACHE[key] = prepared
-        while len(_CACHE) > CACHE_SIZE:
-            _CACHE.popitem(last=False)
-        return prepared, time.perf_counter() - t0
-
-
-def _row(
-    batch: Batch, trial: int, seed: int, k_true: np.ndarray, names, result=None, error: str = ""
-) -> dict:
-    cell = batch.cell
-    row = {"trial_key": f"{cell.key};trial={trial}", "cell_key": cell.key, **cell.params(), "trial": trial,
-           "seed": seed, "status": "ok" if result is not None else "failed", "error": error}  # fmt: skip
-    nan = np.full(len(names), np.nan)
-    k = result.stiffness if result is not None else nan
-    k_std = result.stiffness_std if result is not None else nan
-    for j, name in enumerate(names):
-        row[f"k_{name}"] = float(k[j])
-        row[f"k_std_{name}"] = float(k_std[j])
-        row[f"k_true_{name}"] = float(k_true[j])
-        row[f"err_{name}"] = float(k[j] / k_true[j] - 1.0)
-    res_std = result.component_std if result is not None else np.full(6, np.nan)
-    row.update({f"res_std_{c}": float(v) for c, v in zip(COMPONENTS, res_std)})
-    row["condition_number"] = float(result.condition_number) if result is not None else np.nan
-    row["chi2_reduced"] = float(result.chi2_reduced) if result is not None else np.nan
-    row["n_warnings"] = len(result.warnings) if result is not None else 0
-    return row
-
-
-def run_batch(batch: Batch) -> BatchResult:
-    """Run the trials of one batch (in a worker): prepared physics from the cache, noise per trial."""
-    prepared, prep_s = _prepared(batch)
-    names = batch.scenario.robot.joint_names
-    sensor = ForceTorqueSensor(
-        batch.scenario.lab.sensor, batch.ft_noise_std, batch.scenario.force_sensor.bias
-    )
-    t0 = time.perf_counter()
-    rows = []
-    for trial, seed in zip(batch.trials, batch.seeds):
-        try:
-            result = montecarlo.trial(
-                prepared, seed, batch.cell.n_tests, batch.cell.method, batch.noise, sensor
-            )
-            rows.append(_row(batch, trial, seed, prepared.stiffness_true, names, result))
-        except VtestbedError as exc:
-            rows.append(
-                _row(batch, trial, seed, prepared.stiffness_true, names, error=f"{type(exc).__name__}: {exc}")
-            )
-    return BatchResult(rows, prep_s, time.perf_counter() - t0, os.getpid())
-
-
 def _batches(campaign: Campaign, plans, done: set, workers: int, batch_trials: int | None) -> list[Batch]:
     todo = []
     for cell in campaign.cells():
@@ -212,26 +98,28 @@ def _batches(campaign: Campaign, plans, done: set, workers: int, batch_trials: i
         if missing:
             todo.append((cell, missing))
     total = sum(len(m) for _, m in todo)
-    out = []
+    out, lists = [], {}
     for cell, missing in todo:
         size = batch_trials or max(1, round(TARGET_BATCH_S / (SECONDS_PER_TEST * cell.n_tests)))
         if batch_trials is None:  # enough batches to keep every worker busy to the end
             size = max(1, min(size, math.ceil(total / (4 * workers))))
-        plan = plans[campaign.plan_key(cell)]
+        key = campaign.plan_key(cell)
+        if key not in lists:  # the test list's scenario, built once and shared by its batches
+            lists[key] = (
+                plans[key].scenario(campaign.scenario),
+                campaign.scenario.fingerprint + plans[key].digest,
+            )
+        tests, list_key = lists[key]
         noise, ft = campaign.scan_noise(cell), campaign.ft_noise_std(cell)
         for i in range(0, len(missing), size):
             trials = tuple(missing[i : i + size])
             seeds = tuple(campaign.trial_seed(cell, t) for t in trials)
-            out.append(Batch(campaign.scenario, plan, cell, noise, ft, trials, seeds))
+            out.append(Batch(tests, list_key, cell, noise, ft, trials, seeds))
     out.sort(key=lambda b: (campaign.plan_key(b.cell), b.cell.key, b.trials[0]))
     return out
 
 
 # ---------------------------------------------------------------------- executors
-def _ignore_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the pool
-
-
 def _run_inline(batches):
     for b in batches:
         yield b, run_batch(b)
@@ -239,7 +127,9 @@ def _run_inline(batches):
 
 def _run_processes(batches, workers: int):
     ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=init_local_worker, initargs=(os.getpid(),)
+    )
     try:
         with _single_threaded_children():  # workers are spawned during the submits
             futures = {pool.submit(run_batch, b): b for b in batches}
@@ -351,6 +241,7 @@ def _sweep_into(out, campaign, workers, scheduler, progress, batch_trials, stats
         runner = _run_inline(batches)
     else:
         runner = _run_processes(batches, workers)
+    import pandas as pd  # the parent's bookkeeping only: workers never import it
     from tqdm import tqdm
 
     todo = sum(len(b.trials) for b in batches)
@@ -359,6 +250,7 @@ def _sweep_into(out, campaign, workers, scheduler, progress, batch_trials, stats
     try:
         for batch, result in runner:
             write_part(out, batch.name, pd.DataFrame(result.rows))
+            stats.worker_peak_rss_mib = max(stats.worker_peak_rss_mib, result.peak_rss_mib)
             stats.prepare_s += result.prepare_s
             stats.compute_s += result.compute_s
             stats.trials_run += len(batch.trials)
@@ -378,8 +270,6 @@ def _logger(progress: bool):
         return None
 
     def log(message: str) -> None:
-        import sys
-
         print(f"vtestbed sweep: {message}", file=sys.stderr, flush=True)
 
     return log

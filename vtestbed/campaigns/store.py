@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from ..errors import VtestbedError
 from ..files import read_json, write_atomic, write_json_atomic
@@ -24,6 +23,9 @@ from ..robots import MODELS_DIR
 from ..world.truth import load_truth
 from .posesets import TestPlan, build_plans, plan_prior, plan_quality
 from .spec import AXES, Campaign
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 MANIFEST = "campaign.json"
 TRIALS_DIR = "trials"
@@ -46,6 +48,8 @@ def remove_stale_parts(out: Path) -> None:
 
 def read_results(out: str | Path) -> pd.DataFrame:
     """Every trial in ``out/trials`` (one row per trial key; duplicates dropped)."""
+    import pandas as pd  # imported here: a campaign worker imports this package, never pandas
+
     parts = sorted((Path(out) / TRIALS_DIR).glob("part-*.parquet"))
     if not parts:
         return pd.DataFrame(columns=["trial_key"])
@@ -56,6 +60,8 @@ def read_results(out: str | Path) -> pd.DataFrame:
 
 def _read_part(path: Path) -> pd.DataFrame:
     """One Parquet part, or a SweepError naming it (a truncated or foreign file)."""
+    import pandas as pd
+
     try:
         frame = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises several types (ArrowInvalid, OSError, ...)
@@ -85,7 +91,12 @@ def code_fingerprint() -> str:
 
 def _reporting_only(relative: Path) -> bool:
     """Modules that cannot change a trial's numbers: the CLI, reports and figures."""
-    return relative.parts[0] == "cli" or relative.stem in ("report", "plots", "plotting", "comparison")
+    return relative.parts[0] in ("cli", "reports") or relative.stem in (
+        "report",
+        "plots",
+        "plotting",
+        "comparison",
+    )
 
 
 def open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dict:

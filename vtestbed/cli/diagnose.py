@@ -20,6 +20,11 @@ def _cmd_diagnose(args) -> int:
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics)
+    html = None
+    if args.out:
+        from ..reports import write_report
+
+        html = write_report(args.out)
     if args.json:
         print(dumps(report, indent=1, default=float))
         return 0
@@ -27,7 +32,7 @@ def _cmd_diagnose(args) -> int:
 
     print(markdown(report, load_robot(read_setup(args.dataset).robot).joint_names))
     if args.out:
-        print(f"wrote {Path(args.out) / 'report.json'}, report.md, gap.png")
+        print(f"wrote {Path(args.out) / 'report.json'}, report.md, gap.png, {html}")
     return 0
 
 
@@ -40,7 +45,10 @@ def register(sub) -> None:
     p.add_argument(
         "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
     )
-    p.add_argument("--candidates", help="comma-separated candidate names (default: all)")
+    p.add_argument(
+        "--candidates",
+        help="comma-separated candidate names (default: all but the opt-in geometric_error)",
+    )
     p.add_argument("--statics", default="exact", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
     p.add_argument("--json", action="store_true")

@@ -64,7 +64,9 @@ def _cmd_identify(args) -> int:
     from ..experiment import identify_dataset
     from ..researcher.noise_floor import estimate_noise_floor
 
-    setup, measurements, result = identify_dataset(args.dataset, args.method, progress=not args.quiet)
+    setup, measurements, result = identify_dataset(
+        args.dataset, args.method, progress=not args.quiet, strict=args.strict
+    )
     out = {"dataset": str(args.dataset), **result.as_dict()}
     floor = estimate_noise_floor(args.dataset, measurements)  # None without repeat scans
     if floor is not None:
@@ -106,8 +108,13 @@ def _cmd_run(args) -> int:
         progress=not args.quiet,
         figures=not args.no_figures,
         replace_stale=getattr(args, "replace_stale", False),
+        strict=getattr(args, "strict", False),
     )
     _print_run(summary, out)
+    if not args.no_figures:
+        from ..reports import write_report
+
+        print(f"wrote {write_report(out)}")
     return 0
 
 
@@ -133,6 +140,11 @@ def register(sub) -> None:
     p.add_argument(
         "--model", type=Path, help="model.json from 'vtestbed diagnose': add its terms (needs repeat scans)"
     )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse implausible tests (a block that did not move, moved against or far beyond its load, a force that misses the block) instead of warning",
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_identify)
 
@@ -141,7 +153,12 @@ def register(sub) -> None:
     )
     p.add_argument("scenario", type=Path)
     p.add_argument("--out", type=output_dir, required=True)
-    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures and report.html")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse implausible tests (a block that did not move, moved against or far beyond its load, a force that misses the block) instead of warning",
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_run)
 

@@ -6,7 +6,6 @@ import json
 import sys
 from pathlib import Path
 
-from ..campaigns.spec import load_campaign
 from ..files import dumps
 from .args import integer, output_dir
 
@@ -39,8 +38,10 @@ def _text_report(report: dict) -> str:
 
 
 def _cmd_sweep(args) -> int:
+    # imported here, not at the top: building the parser for another command must not load them
     from ..campaigns.report import write_report
     from ..campaigns.runner import sweep
+    from ..campaigns.spec import load_campaign
     from ..campaigns.store import MANIFEST
 
     campaign = load_campaign(args.scenario)  # every error is raised here, before any work
@@ -54,6 +55,9 @@ def _cmd_sweep(args) -> int:
         manifest = json.loads((Path(args.out) / MANIFEST).read_text())
         report = write_report(df, Path(args.out) / "report", manifest)
         print(_text_report(report))
+        from ..reports import write_report as write_html
+
+        print(f"wrote {write_html(args.out)}")
     else:
         print(f"{len(df)} trials in {args.out}", file=sys.stderr)
     return 0

@@ -21,6 +21,7 @@ ring at the commanded pose), which a researcher can compute without the truth wo
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -317,7 +318,7 @@ def scenario_toml(tests) -> str:
     )
     return (
         '[poses]\nconvention = "dh"\nangles_deg = [\n' + rows + ",\n]\n\n[load]\n"
-        f"hook = [{', '.join(repr(t.hook).replace(chr(39), chr(34)) for t in tests)}]\n"
-        f"anchor = [{', '.join(repr(t.anchor).replace(chr(39), chr(34)) for t in tests)}]\n"
+        f"hook = [{', '.join(json.dumps(t.hook) for t in tests)}]\n"  # TOML basic strings share JSON's escapes
+        f"anchor = [{', '.join(json.dumps(t.anchor) for t in tests)}]\n"
         f"tension_N = {tension}\n"
     )

@@ -17,7 +17,7 @@ exact statics in :mod:`.statics`). Units: SI.
 from .candidates import Candidate, candidates
 from .cloud import BlockFrame, FitParams, fit_block_frame
 from .discrepancy import diagnose
-from .identify import IdentificationResult, a_matrix, identify
+from .identify import IdentificationResult, a_matrix, identify, identify_prefixes
 from .kinematics import ArmKinematics, build_pinocchio_model
 from .measure import (
     TestMeasurement,
@@ -50,6 +50,7 @@ __all__ = [
     "fit_block_frame",
     "identify",
     "identify_measurements",
+    "identify_prefixes",
     "load_measurements",
     "measure_arrays",
     "measure_test",

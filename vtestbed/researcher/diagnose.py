@@ -23,7 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import (
+    chdtrc,
+)  # the chi^2 survival function (scipy.stats.chi2.sf), without scipy.stats' import
 
 from ..errors import DatasetError, OutOfRangeError
 from .candidates import Candidate, ModelContext
@@ -55,7 +57,7 @@ class ModelFit:
 
     @property
     def p_value(self) -> float:
-        return float(chi2_dist.sf(self.chi2, self.dof))
+        return float(chdtrc(self.dof, self.chi2))
 
     @property
     def stiffness_std(self) -> np.ndarray:
@@ -196,7 +198,7 @@ def name_effects(
             fit = fit_model(ctx, white, [*chosen, cand])
             df = len(fit.x) - len(current.x)
             lr = max(current.chi2 - fit.chi2, 0.0)
-            p = float(chi2_dist.sf(lr, df)) if df > 0 else 1.0
+            p = float(chdtrc(df, lr)) if df > 0 else 1.0
             bic = fit.chi2 + len(fit.x) * np.log(n_obs)
             sig = p < alpha / len(remaining)
             rows.append({"label": cand.label, "name": cand.name, "lr": lr, "df": df, "p_value": p,

@@ -19,7 +19,8 @@ from ..errors import DatasetError, UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
-from .candidates import CANDIDATE_NAMES, ModelContext, candidates
+from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
+from .candidates import CANDIDATE_NAMES, OPTIONAL_CANDIDATE_NAMES, ModelContext, candidates
 from .diagnose import (
     CONFUSABLE_BIC,
     DEFAULT_ALPHA,
@@ -34,9 +35,6 @@ from .kinematics import ArmKinematics
 from .measure import load_measurements
 from .noise_floor import estimate_noise_floor
 from .statics import ExactStatics
-
-COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
-
 
 STATICS = ("exact", "paper")
 
@@ -284,7 +282,7 @@ def read_model(path, robot, kin) -> tuple[list, str]:
         raise DatasetError(
             f"{path}: robot = {data.get('robot')!r} does not match the dataset's robot {robot!r}"
         )
-    pool = {c.label: c for c in candidates(kin)}
+    pool = {c.label: c for c in candidates(kin, CANDIDATE_NAMES + OPTIONAL_CANDIDATE_NAMES)}
     terms = data.get("terms")
     if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
         raise DatasetError(f"{path}: terms must be a list of candidate labels")

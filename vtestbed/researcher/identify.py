@@ -22,6 +22,11 @@ Three estimators:
 
 Stiffness standard deviations follow from the compliance covariance by the delta method,
 ``std(k_j) = std(c_j) / c_j^2``.
+
+Cost is linear in T: the whitening is a row scale (fgls, ols) or per-test 6 x 6 blocks (wls),
+never a dense (6 T, 6 T) matrix, and the jackknife's T refits are done together on per-component
+normal equations downdated by the dropped test (:func:`_jackknife_cov`). A fit of 500 tests takes
+milliseconds (``benchmarks/bench_identify.py``).
 """
 
 from __future__ import annotations
@@ -91,21 +96,77 @@ def stack(jacobians, wrenches) -> np.ndarray:
         raise OutOfRangeError(
             f"jacobians must have shape (T, 6, n) and wrenches (T, 6); got {jacobians.shape} and {wrenches.shape}"
         )
-    return np.concatenate([a_matrix(j, f) for j, f in zip(jacobians, wrenches)])
+    # a_matrix for all tests at once, J * (J^T F): a batched matmul, the same products as a loop
+    torques = np.matmul(jacobians.transpose(0, 2, 1), wrenches[:, :, None])[:, :, 0]
+    return (jacobians * torques[:, None, :]).reshape(-1, jacobians.shape[2])
 
 
-def _solve_weighted(a: np.ndarray, d: np.ndarray, whiten: np.ndarray):
-    """Least squares on the whitened system; returns c, (A^T W A)^-1, cond of the normalised system."""
-    aw = whiten @ a
-    dw = whiten @ d
+def _apply(whiten: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Whiten rows of ``x`` (6 T,) or (6 T, n): ``whiten`` is a row scale (6 T,) or per-test
+    blocks (T, 6, 6). Never a dense (6 T, 6 T) matrix: that made a fit O(T^2) in memory and
+    O(T^3) in time for a block-diagonal operator."""
+    if whiten.ndim == 1:
+        return x * (whiten if x.ndim == 1 else whiten[:, None])
+    return np.matmul(whiten, x.reshape(whiten.shape[0], 6, -1)).reshape(x.shape)
+
+
+def _solve_weighted(aw: np.ndarray, dw: np.ndarray):
+    """Least squares on the whitened system (6 T, n), (6 T,); returns c and (A^T W A)^-1."""
     norms = np.linalg.norm(aw, axis=0)
-    scaled = aw / norms
-    u, s, vt = np.linalg.svd(scaled, full_matrices=False)
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    u, s, vt = np.linalg.svd(aw / norms, full_matrices=False)  # column-scaled: SVD of a (6 T, n)
     c = (vt.T @ ((u.T @ dw) / s)) / norms
-    inv_scaled = (vt.T / s**2) @ vt
-    cov = inv_scaled / np.outer(norms, norms)
-    return c, cov, cond
+    cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
+    return c, cov
+
+
+def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench):
+    """Validate the inputs once; returns the stacked A (6 T, n), d (T, 6) and the joint names."""
+    if method not in METHODS:
+        raise UnknownNameError("identification method", method, METHODS)
+    d = np.asarray(displacements, dtype=float)
+    wrenches = np.asarray(wrenches, dtype=float)
+    a = stack(jacobians, wrenches)
+    n_tests, n = wrenches.shape[0], a.shape[1]
+    names = tuple(joint_names or (f"joint{i + 1}" for i in range(n)))
+    if d.shape != (n_tests, 6):
+        raise OutOfRangeError(f"displacements must have shape ({n_tests}, 6), got {d.shape}")
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(d))):
+        raise OutOfRangeError("jacobians, wrenches and displacements must be finite")
+    slack = np.flatnonzero(np.linalg.norm(wrenches[:, :3], axis=1) < min_wrench)
+    if slack.size:
+        raise SlackWireError(
+            f"tests {slack.tolist()} have a force change below {min_wrench:g} N: the wire was slack "
+            "(no load); tighten it or drop those tests"
+        )
+    if 6 * n_tests < n:
+        raise OutOfRangeError(
+            f"n_tests = {n_tests} gives {6 * n_tests} equations for {n} unknowns; need >= 1 test"
+        )
+    s = np.linalg.svd(np.asarray(jacobians, dtype=float), compute_uv=False)  # (T, min(6, n))
+    singular = np.flatnonzero(s[:, -1] < 1e-9 * s[:, 0])
+    if singular.size:
+        t = singular[0]
+        raise SingularPoseError(
+            f"test {t}: the Jacobian is singular (sigma_min/sigma_max = {s[t, -1] / s[t, 0]:.1e})"
+        )
+    return a, d, names
+
+
+def _wls_whitening(displacement_cov, n_tests: int) -> np.ndarray:
+    """Per-test whitening blocks L^-1 (T, 6, 6) of Sigma_t = L L^T, checked."""
+    if displacement_cov is None:
+        raise OutOfRangeError("method 'wls' needs displacement_cov, (T, 6, 6) or (6, 6)")
+    cov = np.asarray(displacement_cov, dtype=float)
+    if cov.shape not in ((6, 6), (n_tests, 6, 6)) or not np.all(np.isfinite(cov)):
+        raise OutOfRangeError(
+            f"displacement_cov must be finite, (6, 6) or ({n_tests}, 6, 6); got {cov.shape}"
+        )
+    cov = np.broadcast_to(cov, (n_tests, 6, 6))
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        raise OutOfRangeError("displacement_cov must be symmetric positive definite") from None
+    return np.linalg.inv(chol)
 
 
 def identify(
@@ -127,50 +188,61 @@ def identify(
     wrenches : (T, 6) external wrench change (loaded minus unloaded) at that point [N, N*m]
     displacements : (T, 6) measured displacement of that point [m, m, m, rad, rad, rad]
     method : {"ols", "wls", "fgls"}
-    displacement_cov : (T, 6, 6) or (6, 6), required for ``"wls"``
+    displacement_cov : (T, 6, 6) or (6, 6), required for ``"wls"`` [m^2, m*rad, rad^2]
     min_wrench : float
         A test whose force change is below this [N] has a slack wire and is refused.
+
+    Notes
+    -----
+    Time and memory are linear in T: the whitening is applied per test, and the jackknife
+    refits work on per-component normal equations (see :func:`_jackknife_cov`).
     """
-    if method not in METHODS:
-        raise UnknownNameError("identification method", method, METHODS)
-    d = np.asarray(displacements, dtype=float)
-    wrenches = np.asarray(wrenches, dtype=float)
-    a = stack(jacobians, wrenches)
+    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench)
+    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
+    result = _fit(a, d, method, names, whiten, iterations)
+    for note in result.warnings:
+        warnings.warn(note, stacklevel=2)
+    return result
+
+
+def identify_prefixes(
+    jacobians,
+    wrenches,
+    displacements,
+    *,
+    method: str = "fgls",
+    displacement_cov=None,
+    joint_names: tuple[str, ...] | None = None,
+    min_wrench: float = 1.0,
+    iterations: int = 5,
+) -> list[IdentificationResult]:
+    """:func:`identify` on the first n tests, for n = 1..T (a convergence study).
+
+    Same parameters as :func:`identify`. The inputs are checked and stacked (for ``"wls"`` the
+    whitening blocks factored) once, and each prefix is a slice of them; a fit on n tests costs
+    O(n), so the study costs O(T^2). Result ``n - 1`` equals ``identify`` on the first n tests
+    (the same arithmetic); its notes are in its ``warnings`` field, not emitted as warnings.
+    """
+    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench)
+    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
+    return [
+        _fit(a[: 6 * n], d[:n], method, names, None if whiten is None else whiten[:n], iterations)
+        for n in range(1, d.shape[0] + 1)
+    ]
+
+
+def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
+    """One identification on checked, stacked inputs: A (6 T, n), d (T, 6)."""
     n_tests, n = d.shape[0], a.shape[1]
-    names = tuple(joint_names or (f"joint{i + 1}" for i in range(n)))
-    if d.shape != (n_tests, 6) or a.shape[0] != 6 * n_tests:
-        raise OutOfRangeError(f"displacements must have shape ({a.shape[0] // 6}, 6), got {d.shape}")
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(d))):
-        raise OutOfRangeError("jacobians, wrenches and displacements must be finite")
-    slack = np.flatnonzero(np.linalg.norm(wrenches[:, :3], axis=1) < min_wrench)
-    if slack.size:
-        raise SlackWireError(
-            f"tests {slack.tolist()} have a force change below {min_wrench:g} N: the wire was slack "
-            "(no load); tighten it or drop those tests"
-        )
-    if 6 * n_tests < n:
-        raise OutOfRangeError(
-            f"n_tests = {n_tests} gives {6 * n_tests} equations for {n} unknowns; need >= 1 test"
-        )
-    for t, jac in enumerate(np.asarray(jacobians)):
-        s = np.linalg.svd(jac, compute_uv=False)
-        if s[-1] < 1e-9 * s[0]:
-            raise SingularPoseError(
-                f"test {t}: the Jacobian is singular (sigma_min/sigma_max = {s[-1] / s[0]:.1e})"
-            )
     d_flat = d.reshape(-1)
     if method == "wls":
-        if displacement_cov is None:
-            raise OutOfRangeError("method 'wls' needs displacement_cov, (T, 6, 6) or (6, 6)")
-        cov = np.broadcast_to(np.asarray(displacement_cov, dtype=float), (n_tests, 6, 6))
-        whiten = _block_diag([np.linalg.inv(np.linalg.cholesky(c)) for c in cov])
-        c, cov_c, cond = _solve_weighted(a, d_flat, whiten)
+        whiten = wls_whiten
+        c, cov_c = _solve_weighted(_apply(whiten, a), _apply(whiten, d_flat))
     else:
         c, cov_c, whiten = _fgls(a, d_flat, n_tests, n, iterations if method == "fgls" else 1)
     # Condition number of the joints' contributions to the (weighted) displacements: a joint
     # whose torque is small in every test contributes little and makes this large.
-    contrib = (whiten @ a) * np.abs(c)[None, :]
-    sv = np.linalg.svd(contrib, compute_uv=False)
+    sv = np.linalg.svd(_apply(whiten, a) * np.abs(c)[None, :], compute_uv=False)
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     residuals = d_flat - a @ c
     res6 = residuals.reshape(n_tests, 6)
@@ -180,10 +252,10 @@ def identify(
         cov_c = cov_c * sigma2  # whiten = I: cov = s^2 (A^T A)^-1
         chi2 = 1.0
     else:
-        white = whiten @ residuals
+        white = _apply(whiten, residuals)
         chi2 = float(white @ white / dof)
         if method == "fgls" and n_tests >= JACKKNIFE_MIN_TESTS:
-            cov_c = _jackknife_cov(a, d_flat, n_tests, n, iterations)
+            cov_c = _jackknife_cov(a, d_flat, c, iterations)
         elif method == "fgls":  # the variances were estimated: carry their scale (wls keeps Sigma)
             cov_c = cov_c * chi2
     component_std = np.sqrt(np.mean(res6**2, axis=0))
@@ -201,8 +273,6 @@ def identify(
             "one test gives as many equations as unknowns: no residual, so no uncertainty (std = nan)"
         )
         cov_c = np.full_like(cov_c, np.nan)
-    for note in notes:
-        warnings.warn(note, stacklevel=2)
     with np.errstate(divide="ignore"):
         k = 1.0 / c
     std_c = np.sqrt(np.clip(np.diag(cov_c), 0.0, None)) if np.all(np.isfinite(cov_c)) else np.diag(cov_c)
@@ -222,55 +292,88 @@ def identify(
     )
 
 
+def _next_std(ss: np.ndarray, n_tests: int, n: int):
+    """FGLS update: per-component noise std (..., 6) from residual sums of squares (..., 6), and
+    whether the fit was exact (no information on the noise: fall back to unit weights)."""
+    dof_share = max(n_tests - n / 6.0, 1.0)  # n parameters spread over 6 components
+    std = np.sqrt(ss / dof_share)
+    exact = (6 * n_tests <= n) | ~np.any(std > 0, axis=-1)
+    return np.maximum(std, 1e-9 * std.max(axis=-1, keepdims=True)), exact
+
+
 def _fgls(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: int):
     """Least squares weighted by per-component noise variances re-estimated from the residuals.
 
-    Returns the compliances, the unscaled covariance (A^T W A)^-1 and the whitening matrix.
-    ``iterations = 1`` is ordinary least squares.
+    Returns the compliances, the unscaled covariance (A^T W A)^-1 and the whitening as a row
+    scale (6 T,). ``iterations = 1`` is ordinary least squares.
     """
     comp_std = np.ones(6)
     for it in range(iterations):
-        whiten = np.diag(np.tile(1.0 / comp_std, n_tests))
-        c, cov_c, _ = _solve_weighted(a, d_flat, whiten)
+        scale = np.tile(1.0 / comp_std, n_tests)
+        c, cov_c = _solve_weighted(a * scale[:, None], d_flat * scale)
         if it == iterations - 1:
             break
         res = (d_flat - a @ c).reshape(n_tests, 6)
-        dof_share = max(n_tests - n / 6.0, 1.0)  # n parameters spread over 6 components
-        comp_std = np.sqrt(np.sum(res**2, axis=0) / dof_share)
-        if 6 * n_tests <= n or not np.any(comp_std > 0):
+        comp_std, exact = _next_std(np.sum(res**2, axis=0), n_tests, n)
+        if exact:
             comp_std = np.ones(6)  # an exact fit carries no information on the noise
-            whiten = np.diag(np.tile(1.0 / comp_std, n_tests))
-            c, cov_c, _ = _solve_weighted(a, d_flat, whiten)
+            scale = np.tile(1.0 / comp_std, n_tests)
+            c, cov_c = _solve_weighted(a * scale[:, None], d_flat * scale)
             break
-        comp_std = np.maximum(comp_std, 1e-9 * comp_std.max())
-    return c, cov_c, whiten
+    return c, cov_c, scale
 
 
 JACKKNIFE_MIN_TESTS = 8  # below this the analytic FGLS covariance (spread/std about 1.3 at 6 tests)
 
 
-def _jackknife_cov(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: int) -> np.ndarray:
+def _jackknife_cov(a: np.ndarray, d_flat: np.ndarray, c_full: np.ndarray, iterations: int) -> np.ndarray:
     """Delete-one-test jackknife covariance of the FGLS compliances.
 
     The analytic (A^T W A)^-1 ignores that the weights were estimated from the same data and
     that a test's six errors are correlated (a scanner's drift rotation also moves the block);
     refitting without each test in turn captures both. Slightly conservative by construction.
+
+    The T refits repeat :func:`_fgls` (same start, same number of iterations) on the normal
+    equations, all at once: each displacement component k has a Gram matrix G_k = A_k^T A_k
+    (n, n) over all tests, and dropping test t subtracts its rank-one term a_tk a_tk^T (a
+    downdate, exact for a linear model). The unknown is the step delta = c - c_full from the
+    full fit and the residual sums are taken about the full fit's residuals e, so the sums
+    ``sum (e - A delta)^2 = s - 2 delta.g + delta^T G delta`` do not cancel catastrophically.
+    Cost O(T n^3) per iteration instead of a (6 T, n) SVD per refit (O(T^2)).
     """
-    keep = np.ones(6 * n_tests, dtype=bool)
-    estimates = np.empty((n_tests, n))
-    for t in range(n_tests):
-        keep[:] = True
-        keep[6 * t : 6 * t + 6] = False
-        estimates[t] = _fgls(a[keep], d_flat[keep], n_tests - 1, n, iterations)[0]
-    dev = estimates - estimates.mean(axis=0)
+    n = a.shape[1]
+    a3 = a.reshape(-1, 6, n)
+    n_tests = a3.shape[0]
+    e = (d_flat - a @ c_full).reshape(n_tests, 6)
+    gram = np.einsum("tki,tkj->kij", a3, a3)  # (6, n, n)
+    g = np.einsum("tki,tk->ki", a3, e)  # (6, n): A_k^T e_k
+    s = np.sum(e**2, axis=0)  # (6,)
+    weights = np.ones((n_tests, 6))
+    frozen = np.zeros(n_tests, dtype=bool)  # refits that met an exact fit keep unit weights
+    for it in range(iterations):
+        aw = a3 * weights[:, :, None]
+        normal = np.einsum("tk,kij->tij", weights, gram) - np.einsum("tki,tkj->tij", aw, a3)
+        rhs = weights @ g - np.einsum("tki,tk->ti", aw, e)
+        delta = _solve_batched(normal, rhs)
+        if it == iterations - 1:
+            break
+        u = np.einsum("tki,ti->tk", a3, delta)  # the dropped test's predicted change
+        ss = s - 2.0 * delta @ g.T + np.einsum("ti,kij,tj->tk", delta, gram, delta) - (e - u) ** 2
+        std, exact = _next_std(np.clip(ss, 0.0, None), n_tests - 1, n)
+        frozen |= exact
+        weights = 1.0 / np.where(frozen[:, None], 1.0, std) ** 2
+    dev = delta - delta.mean(axis=0)  # estimates c_full + delta, less their mean
     return (n_tests - 1) / n_tests * dev.T @ dev
 
 
-def _block_diag(blocks) -> np.ndarray:
-    size = sum(b.shape[0] for b in blocks)
-    out = np.zeros((size, size))
-    i = 0
-    for b in blocks:
-        out[i : i + b.shape[0], i : i + b.shape[1]] = b
-        i += b.shape[0]
-    return out
+def _solve_batched(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve (T, n, n) symmetric normal equations for (T, n) right-hand sides, equilibrated to a
+    unit diagonal as the SVD path scales A's columns. If one is exactly singular (a refit that
+    cannot see a joint) all get the pseudo-inverse's minimum-norm step instead of an exception."""
+    scale = 1.0 / np.sqrt(np.diagonal(normal, axis1=1, axis2=2))
+    scaled = normal * scale[:, :, None] * scale[:, None, :]
+    try:
+        y = np.linalg.solve(scaled, (rhs * scale)[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        y = np.einsum("tij,tj->ti", np.linalg.pinv(scaled), rhs * scale)
+    return y * scale

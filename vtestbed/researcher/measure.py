@@ -21,13 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
-from ..errors import DatasetError, ScanError, VtestbedError
+from ..errors import DatasetError, ImplausibleDataError, ScanError, VtestbedError
 from ..ply import read_ply
 from ..robots import load_robot
 from ..transforms import displacement_in_block_frame, invert
 from . import cloud
 from .identify import IdentificationResult, identify
 from .kinematics import ArmKinematics
+from .plausibility import plausibility_notes
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,9 @@ class TestMeasurement:
     frame_unloaded: np.ndarray  # (4, 4) fitted block frame in the scanner frame
     frame_loaded: np.ndarray  # (4, 4)
     readings: tuple | None = None  # (unloaded, loaded) F/T readings (6,) [N, N*m], sensor frame
+    # (unloaded, loaded) path of each cloud fit, cloud.BlockFrame.method: "fast", or "ransac" when
+    # a check of the fast path failed (the nominal pose far off, clutter, a face cut off)
+    fit_methods: tuple[str, str] = ("fast", "fast")
 
 
 def wrench_at_block(wrench_sensor: np.ndarray, setup: DatasetSetup) -> np.ndarray:
@@ -73,15 +77,23 @@ def nominal_block_frame(record: TestRecord, setup: DatasetSetup, kin: ArmKinemat
     return q, invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
 
 
-def fit_scan(points: np.ndarray, nominal: np.ndarray, setup: DatasetSetup, label: str) -> np.ndarray:
-    """The fitted block frame (4, 4) of one cloud (N, 3) [m, scanner frame] near ``nominal``.
+def fit_scan_frame(points: np.ndarray, nominal, setup: DatasetSetup, label: str) -> cloud.BlockFrame:
+    """The fitted block frame of one cloud (N, 3) [m, scanner frame] near ``nominal`` (4, 4).
 
-    Raises a ScanError that starts with ``label`` (e.g. ``test T001, unloaded cloud``).
+    The fast path when the nominal pose is good to 3 deg and 8 mm (the commanded pose through the
+    nominal kinematics and the recorded scanner pose are; the unloaded fit for the loaded scan is),
+    open3d RANSAC otherwise (``BlockFrame.method``). Raises a ScanError that starts with ``label``
+    (e.g. ``test T001, unloaded cloud``).
     """
     try:
-        return cloud.fit_block_frame(points, nominal, cloud.FitParams(edge_m=setup.block_edge)).pose
+        return cloud.fit_block_frame(points, nominal, cloud.FitParams(edge_m=setup.block_edge))
     except VtestbedError as exc:
         raise ScanError(f"{label}: {exc}") from None
+
+
+def fit_scan(points: np.ndarray, nominal, setup: DatasetSetup, label: str) -> np.ndarray:
+    """The pose (4, 4) of :func:`fit_scan_frame`."""
+    return fit_scan_frame(points, nominal, setup, label).pose
 
 
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
@@ -105,10 +117,11 @@ def measure_arrays(
     """As :func:`measure_test`, with the clouds (N, 3) [m, scanner frame] already in memory."""
     q, nominal = nominal_block_frame(record, setup, kin)
     # The loaded scan starts from the unloaded fit (the block moves by less than a millimetre).
-    frames = []
+    fits = []
     for label, points in (("unloaded", cloud_unloaded), ("loaded", cloud_loaded)):
-        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, {label} cloud"))
-        nominal = frames[-1]
+        fits.append(fit_scan_frame(points, nominal, setup, f"test {record.test_id}, {label} cloud"))
+        nominal = fits[-1].pose
+    frames = [f.pose for f in fits]
     return TestMeasurement(
         test_id=record.test_id,
         group=record.group,
@@ -119,6 +132,7 @@ def measure_arrays(
         frame_unloaded=frames[0],
         frame_loaded=frames[1],
         readings=(np.array(record.wrench_unloaded, dtype=float), np.array(record.wrench_loaded, dtype=float)),
+        fit_methods=(fits[0].method, fits[1].method),
     )
 
 
@@ -142,9 +156,14 @@ def load_measurements(root: str | Path, progress: Callable[[int, int], None] | N
 
 
 def identify_measurements(
-    measurements: list[TestMeasurement], method: str = "fgls", joint_names=None
+    measurements: list[TestMeasurement], method: str = "fgls", joint_names=None, strict: bool = False
 ) -> IdentificationResult:
-    """Identify from the ``identification`` group of reduced tests."""
+    """Identify from the ``identification`` group of reduced tests.
+
+    Tests that no wire load could produce (:func:`motionless_tests` and the checks of
+    :mod:`.plausibility`) are named in the result's warnings, or, with ``strict``, raise an
+    :class:`~vtestbed.errors.ImplausibleDataError` listing them all.
+    """
     tests = [m for m in measurements if m.group == "identification"]
     if not tests:
         raise DatasetError("the dataset has no test in group 'identification'")
@@ -155,16 +174,22 @@ def identify_measurements(
         method=method,
         joint_names=joint_names,
     )
+    notes = []
     still = motionless_tests(tests, result.compliance)
-    if not still:
+    if still:
+        notes.append(
+            f"tests {', '.join(still)}: the block barely moved under the load (measured displacement below "
+            f"{MOTIONLESS_FRACTION:.0%} of the fitted model's, translation and rotation): the same scan given "
+            "twice, or the load never reached the block? Check their clouds and readings"
+        )
+    notes += plausibility_notes(tests)
+    if not notes:
         return result
-    note = (
-        f"tests {', '.join(still)}: the block barely moved under the load (measured displacement below "
-        f"{MOTIONLESS_FRACTION:.0%} of the fitted model's, translation and rotation): the same scan given "
-        "twice, or the load never reached the block? Check their clouds and readings"
-    )
-    warnings.warn(note, stacklevel=2)
-    return replace(result, warnings=(*result.warnings, note))
+    if strict:
+        raise ImplausibleDataError("implausible measurements (--strict): " + "; ".join(notes))
+    for note in notes:
+        warnings.warn(note, stacklevel=2)
+    return replace(result, warnings=(*result.warnings, *notes))
 
 
 # A loaded block moves: a test whose measured displacement is below this fraction of the fitted

@@ -53,6 +53,7 @@ from ..dataset import DatasetSetup, TestRecord, read_repeats, read_setup, read_t
 from ..errors import OutOfRangeError, ScanError, VtestbedError
 from ..ply import read_ply
 from ..robots import load_robot
+from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from ..transforms import displacement_in_block_frame
 from .kinematics import ArmKinematics
 from .measure import TestMeasurement, fit_scan, nominal_block_frame
@@ -65,8 +66,6 @@ __all__ = [
     "scan_deviations",
     "scan_frames",
 ]
-
-COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 
 
 @dataclass(frozen=True, eq=False)

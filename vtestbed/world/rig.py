@@ -7,26 +7,34 @@ springs and wire. Everything read back (true block pose, deflections, the F/T se
 comes from MuJoCo.
 
 The equilibrium is found by Newton's method on the generalized-force residual
-``r(q) = qfrc_passive - qfrc_bias (+ applied)`` at zero velocity, over every degree of freedom of
-the model, so effects that add joints (link compliance) need no change here.
+``r(q) = qfrc_passive - qfrc_bias (+ joint-level effects, + applied)`` at zero velocity, over every
+degree of freedom of the model, so effects that add joints (link compliance) need no change here
+(solver, tangent and round-off test: :mod:`vtestbed.world.statics`). Tightening holds the tension:
+solve under a constant pull along the wire, then set the rest length at which the real wire pulls
+exactly that; the real wire verifies the state.
 """
 
 from __future__ import annotations
 
+import math
+import operator
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from ..errors import ConvergenceError, OutOfRangeError
+from ..errors import ConvergenceError, OutOfRangeError, check_range
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, load_robot
-from ..transforms import homogeneous, quat_wxyz
-from . import mjcf
+from . import mjcf, statics
 from .truth import RobotTruth, load_truth
 
-RESIDUAL_TOL = 1e-9  # N*m; the floor is about ulp(q) * k = 4e-11 N*m
-TENSION_TOL = 1e-6  # N
+TENSION_TOL = 1e-6  # N; holding the tension reaches ~1e-10 N
+# A constant pull T along the wire: a tendon spring of rate T / HOLD_OFFSET whose rest length is
+# -HOLD_OFFSET. It pulls T (1 + L / HOLD_OFFSET), T within 2e-15 relative for a wire of L = 2 m,
+# and its steps in L (ulp(1e15 m) = 0.125 m) move the pull by T * eps; its rate is nil, so the
+# Newton tangent carries only the turning of the wire's direction under T.
+HOLD_OFFSET = 1e15  # m
 
 
 @dataclass(frozen=True)
@@ -53,10 +61,6 @@ class RigState:
     hook_position: np.ndarray  # (3,)
     residual: float  # N*m, max |generalized force residual|
     iterations: int
-
-
-def _site_pose(data: mujoco.MjData, site_id: int) -> np.ndarray:
-    return homogeneous(data.site_xmat[site_id].reshape(3, 3), data.site_xpos[site_id])
 
 
 class Rig:
@@ -101,6 +105,7 @@ class Rig:
         self._joint_qpos = np.array([m.jnt_qposadr[m.joint(n).id] for n in self.robot.joint_names])
         self._joint_dof = np.array([m.jnt_dofadr[m.joint(n).id] for n in self.robot.joint_names])
         self._site = {n: m.site(n).id for n in (mjcf.FLANGE_SITE, mjcf.BLOCK_SITE, mjcf.SENSOR_SITE)}
+        self._site_poses = statics.SitePoses(list(self._site.values()))  # flange, block, sensor
         self._hook_site = m.site(mjcf.WIRE_HOOK_SITE).id
         self._anchor_site = m.site(mjcf.WIRE_ANCHOR_SITE).id
         self._tendon = m.tendon(mjcf.WIRE_TENDON).id
@@ -108,12 +113,17 @@ class Rig:
         self._wire_geom = m.geom("wire_geom").id
         self._wire_mocap = m.body_mocapid[m.body(mjcf.WIRE_VISUAL_BODY).id]
         self._bias = np.zeros(m.nv)
+        # views of MjData's buffers (fixed for its life): each attribute access builds a new one
+        self._qpos, self._qvel, self._qfrc_passive = self.data.qpos, self.data.qvel, self.data.qfrc_passive
+        self._ten_spring, self._ten_stiffness = m.tendon_lengthspring, m.tendon_stiffness  # model's too
         self._applied = np.zeros(m.nv)
         self._external: tuple[np.ndarray, np.ndarray] | None = None
         self.hook_name = next(iter(self.lab.block.hooks))
         self.anchor_name = next(iter(self.lab.table.anchors))
         self._q_cmd = np.zeros(self.robot.dof)
         self._q_guess = m.qpos_spring.copy()
+        self.residual_calls = 0  # evaluations since construction (benchmarks read them)
+        self.tangent_calls = 0
         self.slacken_wire()
 
     # ------------------------------------------------------------------ commands
@@ -157,32 +167,86 @@ class Rig:
         self._external = (f, t)
 
     def _set_rest_length(self, rest_length: float) -> None:
-        self.model.tendon_lengthspring[self._tendon] = [0.0, rest_length]
-        self.model.tendon_stiffness[self._tendon] = self.lab.wire.axial_rigidity / rest_length
+        self._ten_spring[self._tendon] = (0.0, rest_length)
+        self._ten_stiffness[self._tendon] = self.lab.wire.axial_rigidity / rest_length
+
+    def _hold_tension(self, tension: float) -> None:
+        """Replace the wire by a constant pull ``tension`` [N] along it (see HOLD_OFFSET)."""
+        self._ten_spring[self._tendon] = (-HOLD_OFFSET, -HOLD_OFFSET)  # pulls at any length
+        self._ten_stiffness[self._tendon] = tension / HOLD_OFFSET
 
     # ------------------------------------------------------------------ physics
     def _residual(self, qpos: np.ndarray) -> np.ndarray:
+        self.residual_calls += 1
         m, d = self.model, self.data
-        d.qpos[:] = qpos
+        self._qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_tendon(m, d)
+        return self._residual_tail(qpos)
+
+    def _residual_tail(self, qpos: np.ndarray) -> np.ndarray:
+        """The residual from MuJoCo's passive forces on, kinematics and tendons done at ``qpos``."""
+        m, d = self.model, self.data
         mujoco.mj_passive(m, d)
         mujoco.mj_rne(m, d, 0, self._bias)
-        r = d.qfrc_passive - self._bias
+        r = self._qfrc_passive - self._bias
         if self._joint_effects:
             r[self._joint_dof] += self._effect_forces(qpos[self._joint_qpos])
         if self._external is not None:
-            self._applied[:] = 0.0
-            point = d.site_xpos[self._site[mjcf.BLOCK_SITE]]
-            mujoco.mj_applyFT(m, d, *self._external, point, self._tool_body, self._applied)
-            r = r + self._applied
+            r += self._applied_force()
         return r
+
+    def _applied_force(self) -> np.ndarray:
+        """(nv,) generalized force [N*m] of the external wrench at the kinematics in ``data``."""
+        m, d = self.model, self.data
+        self._applied[:] = 0.0
+        point = d.site_xpos[self._site[mjcf.BLOCK_SITE]]
+        mujoco.mj_applyFT(m, d, *self._external, point, self._tool_body, self._applied)
+        return self._applied
+
+    def _applied_force_at(self, qpos: np.ndarray) -> np.ndarray:
+        self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)  # mj_applyFT's Jacobian needs the subtree centres
+        return self._applied_force().copy()
 
     def generalized_force(self, qpos) -> np.ndarray:
         """(nv,) net generalized force [N*m] at ``qpos`` (every dof) and zero velocity: springs,
         tendons, joint-level effects and an applied wrench minus gravity; zero at equilibrium."""
         return self._residual(np.asarray(qpos, dtype=float)).copy()
+
+    def tangent_stiffness(self, qpos) -> np.ndarray:
+        """(nv, nv) tangent stiffness ``-d generalized_force / d qpos`` [N*m/rad] at ``qpos``.
+
+        MuJoCo's part (springs, tendons, gravity) from ``mjd_inverseFD``; the joint-level effects
+        and an applied wrench by central differences (:mod:`vtestbed.world.statics`).
+        """
+        self.tangent_calls += 1
+        qpos = np.asarray(qpos, dtype=float)
+        k = statics.mujoco_tangent(self.model, self.data, qpos)
+        if self._joint_effects:
+            jq, jd = self._joint_qpos, self._joint_dof
+            k[np.ix_(jd, jd)] -= statics.central_difference(self._effect_forces, qpos[jq])
+        if self._external is not None:
+            k -= statics.central_difference(self._applied_force_at, qpos)
+        return k
+
+    def residual_tolerance(self, qpos) -> np.ndarray:
+        """(nv,) the tolerance [N*m] :meth:`solve` asks of each residual component at ``qpos``."""
+        qpos = np.asarray(qpos, dtype=float)
+        tangent = self.tangent_stiffness(qpos)
+        self._residual(qpos)
+        return self._tolerance(qpos, tangent)
+
+    def _tolerance(self, qpos: np.ndarray, tangent: np.ndarray) -> np.ndarray:
+        """(nv,) round-off tolerance [N*m]; force sizes from the latest evaluation (they barely move)."""
+        scale = np.abs(self._qfrc_passive) + np.abs(self._bias)
+        if self._joint_effects:
+            scale[self._joint_dof] += np.abs(self._effect_forces(qpos[self._joint_qpos]))
+        if self._external is not None:
+            scale += np.abs(self._applied)
+        return statics.roundoff_tolerance(tangent, qpos, scale)
 
     def _effect_forces(self, q: np.ndarray) -> np.ndarray:
         """(n,) generalized force [N*m] of the joint-level effects at joint angles ``q`` [rad]."""
@@ -192,72 +256,80 @@ class Rig:
             total += effect.joint_forces(deflection)
         return total
 
-    def solve(self, max_iterations: int = 50, tol: float = RESIDUAL_TOL) -> RigState:
-        """Static equilibrium under gravity, springs and wire at the current settings."""
-        q = self._q_guess.copy()
-        step = 1e-7
-        jac = None
-        r = self._residual(q)
-        for it in range(1, max_iterations + 1):
-            if np.max(np.abs(r)) < tol:
-                self._q_guess = q.copy()
-                return self._readout(q, np.max(np.abs(r)), it - 1)
-            if jac is None or it % 4 == 0:  # chord method, Jacobian refreshed now and then
-                jac = np.empty((q.size, q.size))
-                for k in range(q.size):
-                    dq = q.copy()
-                    dq[k] += step
-                    jac[:, k] = (self._residual(dq) - r) / step
-                self._residual(q)
-            try:
-                q = q - np.linalg.solve(jac, r)
-            except np.linalg.LinAlgError:
-                break
-            r = self._residual(q)
-            if not np.all(np.isfinite(r)):
-                break
-        raise ConvergenceError(
-            f"static equilibrium did not converge in {max_iterations} iterations: residual "
-            f"{np.max(np.abs(r)):.3e} N*m > tolerance {tol:.1e} N*m"
-        )
+    def _equilibrium(self, q0, max_iterations: int, tol: float | None = None, tangent0=None):
+        if not (isinstance(max_iterations, int) and max_iterations >= 0):
+            raise OutOfRangeError(f"max_iterations = {max_iterations!r} must be an integer >= 0")
+        if tol is None:
+            tolerance = self._tolerance
+        else:
+            tol = check_range("tol", tol, 0.0, np.inf, "N*m")
+            tolerance = lambda q, k: np.full(q.size, tol)  # noqa: E731
+        return statics.newton(self._residual, self.tangent_stiffness, tolerance, q0, max_iterations, tangent0)
 
-    def tighten(self, tension: float, max_iterations: int = 30) -> RigState:
+    def solve(self, max_iterations: int = 50, tol: float | None = None) -> RigState:
+        """Static equilibrium under gravity, springs and wire at the current settings.
+
+        Parameters
+        ----------
+        max_iterations : int
+            Newton steps allowed.
+        tol : float, optional
+            An absolute tolerance [N*m] on every residual component; by default each component
+            must reach its round-off floor (:func:`vtestbed.world.statics.roundoff_tolerance`).
+
+        Raises :class:`ConvergenceError` when the tolerance is not reached.
+        """
+        eq = self._equilibrium(self._q_guess, max_iterations, tol)
+        self._q_guess = eq.qpos.copy()
+        return self._readout(eq.qpos, max(map(abs, eq.residual.tolist())), eq.iterations)
+
+    def tighten(self, tension: float, max_iterations: int = 50) -> RigState:
         """Turn the ring until the wire carries ``tension`` [N] at equilibrium.
 
-        Raises :class:`OutOfRangeError` for a tension the sensor cannot measure and
-        :class:`SensorOverloadError` when the resulting wrench leaves the sensor's range.
+        Solves under a constant pull ``tension`` along the wire, sets the rest length at which the
+        real wire pulls exactly that, and checks (or polishes by Newton) the state with the real
+        wire. Raises :class:`OutOfRangeError` for a tension the sensor cannot measure,
+        :class:`ConvergenceError` (the wire left slack) when it misses ``tension`` by more than
+        ``TENSION_TOL`` and :class:`SensorOverloadError` when the wrench leaves the sensor's range.
         """
         self.lab.check_tension(tension, "wire tension")  # use slacken_wire() for no load
-        self.slacken_wire()
-        free = self.solve()
-        ea = self.lab.wire.axial_rigidity
-        # Secant iteration on the rest length; tension(L0) is smooth and monotonic.
-        l_a = free.wire_length * (1.0 - tension / ea)
-        l_b = free.wire_length * (1.0 - 2.0 * tension / ea)
-        f_a = self._tension_at(l_a) - tension
-        state = None
-        for _ in range(max_iterations):
-            state = self._state_at(l_b)
-            f_b = state.wire_tension - tension
-            if abs(f_b) < TENSION_TOL:
-                self._check_sensor_range(state)
-                return state
-            if f_b == f_a:
-                break
-            l_a, l_b, f_a = l_b, l_b - f_b * (l_b - l_a) / (f_b - f_a), f_b
-        raise ConvergenceError(
-            f"could not tighten the wire to {tension:g} N: reached "
-            f"{state.wire_tension if state else float('nan'):.6g} N"
-        )
-
-    def _state_at(self, rest_length: float) -> RigState:
-        self._set_rest_length(rest_length)
-        return self.solve()
-
-    def _tension_at(self, rest_length: float) -> float:
-        return self._state_at(rest_length).wire_tension
+        q0 = self._q_guess
+        self._hold_tension(tension)
+        try:
+            held = self._equilibrium(q0, max_iterations)
+            length, wire_j = statics.tendon_at(self.model, self.data, held.qpos, self._tendon)
+            ea = self.lab.wire.axial_rigidity
+            rest = length * ea / (ea + tension)  # EA (L - L0) / L0 = T
+            self._set_rest_length(rest)
+            # The real wire adds its axial stiffness EA/L0 along its Jacobian; the turning of its
+            # direction under the same pull is in the held tangent already.
+            tangent = held.tangent + (ea / rest) * (wire_j[:, None] * wire_j)  # np.outer, cheaper
+            self.residual_calls += 1
+            r = self._residual_tail(held.qpos)  # the rest length moves no kinematics
+            tol = self._tolerance(held.qpos, tangent)
+            if (np.abs(r) <= tol).all():  # the real wire agrees: no polish
+                eq = statics.Equilibrium(held.qpos, r, tol, 0, 1, 0, tangent)
+            else:
+                eq = self._equilibrium(held.qpos, max_iterations, tangent0=tangent)
+            state = self._readout(
+                eq.qpos, max(map(abs, eq.residual.tolist())), held.iterations + eq.iterations
+            )
+            if not abs(state.wire_tension - tension) <= TENSION_TOL:
+                raise ConvergenceError(
+                    f"could not tighten the wire to {tension:g} N: reached {state.wire_tension:.9g} N "
+                    f"(tolerance {TENSION_TOL:g} N)"
+                )
+        except ConvergenceError:
+            self.slacken_wire()  # never leave the wire replaced by its held pull
+            raise
+        self._q_guess = eq.qpos.copy()
+        self._check_sensor_range(state)
+        return state
 
     def _check_sensor_range(self, state: RigState) -> None:
+        limits = self.lab.sensor.wrench_range
+        if all(map(operator.le, map(abs, state.sensor_wrench.tolist()), limits)):
+            return  # in range (NaN is not): the full check below only names the failing axis
         context = (
             f"sensor wrench at wire tension {state.wire_tension:.1f} N "
             f"(hook {self.hook_name}, anchor {self.anchor_name})"
@@ -280,52 +352,48 @@ class Rig:
         for _ in range(steps if self._joint_effects else 0):  # joint-level effects act through qfrc_applied
             d.qfrc_applied[self._joint_dof] = self._effect_forces(d.qpos[self._joint_qpos])
             mujoco.mj_step(m, d)
-        state = self._readout(d.qpos.copy(), float(np.max(np.abs(self._residual(d.qpos.copy())))), 0)
-        return state
+        return self._readout(d.qpos.copy(), float(np.max(np.abs(self._residual(d.qpos.copy())))), 0)
 
     # ------------------------------------------------------------------ readout
     def _readout(self, qpos: np.ndarray, residual: float, iterations: int) -> RigState:
-        m, d = self.model, self.data
-        d.qpos[:] = qpos
-        d.qvel[:] = 0.0
+        # Hot (twice per test): few numpy calls, each costs ~1 us here, as much as mj_forward.
+        m, d, t = self.model, self.data, self._tendon
+        self._qpos[:] = qpos
+        self._qvel[:] = 0.0
         mujoco.mj_forward(m, d)
-        rest = float(m.tendon_lengthspring[self._tendon][1])
-        length = float(d.ten_length[self._tendon])
-        tension = float(m.tendon_stiffness[self._tendon] * max(length - rest, 0.0))
-        hook = d.site_xpos[self._hook_site].copy()
-        anchor = d.site_xpos[self._anchor_site].copy()
-        direction = (anchor - hook) / np.linalg.norm(anchor - hook)
-        self._place_wire_geom(hook, anchor)
-        q = qpos[self._joint_qpos].copy()
-        return RigState(
+        rest = float(self._ten_spring[t, 1])
+        length = float(d.ten_length[t])
+        tension = float(self._ten_stiffness[t] * max(length - rest, 0.0))
+        site_xpos = d.site_xpos
+        hook, anchor = site_xpos[self._hook_site].copy(), site_xpos[self._anchor_site]
+        axis = anchor - hook
+        half_length = math.sqrt(axis @ axis) / 2
+        # the wire's stand-in capsule onto the segment hook -> anchor (for scans), its z axis along
+        # the wire (its roll about the axis does not show: it is round)
+        d.mocap_pos[self._wire_mocap] = (hook + anchor) / 2
+        mujoco.mju_quatZ2Vec(d.mocap_quat[self._wire_mocap], axis)
+        m.geom_size[self._wire_geom, 1] = half_length
+        mujoco.mj_kinematics(m, d)
+        flange, block, sensor = self._site_poses(d)
+        q = qpos[self._joint_qpos]
+        state = object.__new__(RigState)  # RigState(...) without the frozen __init__'s 15 setattr calls
+        state.__dict__.update(
             q_cmd=self._q_cmd.copy(),
             q=q,
             deflection=q - self._q_cmd,
             qpos_all=qpos.copy(),
-            flange_pose=_site_pose(d, self._site[mjcf.FLANGE_SITE]),
-            block_pose=_site_pose(d, self._site[mjcf.BLOCK_SITE]),
-            sensor_pose=_site_pose(d, self._site[mjcf.SENSOR_SITE]),
+            flange_pose=flange,
+            block_pose=block,
+            sensor_pose=sensor,
             # MuJoCo reports the wrench the parent applies to the tool; the sensor reports the
             # load on it, which is the opposite.
-            sensor_wrench=-d.sensordata[:6].copy(),
+            sensor_wrench=-d.sensordata[:6],
             wire_tension=tension,
             wire_length=length,
             wire_rest_length=rest,
-            wire_direction=direction,
+            wire_direction=axis / (2 * half_length),
             hook_position=hook,
             residual=residual,
             iterations=iterations,
         )
-
-    def _place_wire_geom(self, hook: np.ndarray, anchor: np.ndarray) -> None:
-        """Move the wire's stand-in capsule onto the segment hook -> anchor (for scans)."""
-        axis = anchor - hook
-        length = np.linalg.norm(axis)
-        z = axis / length
-        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-        x /= np.linalg.norm(x)
-        rot = np.column_stack([x, np.cross(z, x), z])
-        self.data.mocap_pos[self._wire_mocap] = (hook + anchor) / 2
-        self.data.mocap_quat[self._wire_mocap] = quat_wxyz(rot)
-        self.model.geom_size[self._wire_geom][1] = length / 2
-        mujoco.mj_kinematics(self.model, self.data)
+        return state

@@ -121,21 +121,43 @@ class ScanNoise:
         drift_trans = rng.standard_normal(3) * self.drift_translation_std_m
         gauss, u_drop, u_out, u_off = rng.standard_normal(n), rng.random(n), rng.random(n), rng.random(n)
         cos_i = hits.cos_incidence
-        theta = np.degrees(np.arccos(cos_i))
-        span = max(self.dropout_full_deg - self.dropout_start_deg, 1e-12)
-        p_drop = np.clip((theta - self.dropout_start_deg) / span, 0.0, 1.0)
+        p_drop = self._dropout_probability(cos_i)
         offset = gauss * self.along_ray_std(cos_i)
         outlier = u_out < self.outlier_fraction
         offset[outlier] = (2 * u_off[outlier] - 1) * self.outlier_range_m
-        points = hits.points_m + offset[:, None] * hits.directions
-        drift = homogeneous(matrix_from_rotation_vector(drift_rotvec), drift_trans)
-        points = points @ drift[:3, :3].T + drift[:3, 3]
         keep = np.flatnonzero(u_drop >= p_drop)
-        return NoisyScan(points[keep], keep, outlier[keep], drift)
+        points = hits.points_m + offset[:, None] * hits.directions
+        if len(keep) < n:
+            points = points[keep]
+        drift = homogeneous(matrix_from_rotation_vector(drift_rotvec), drift_trans)
+        return NoisyScan(_rigid(drift, points), keep, outlier[keep], drift)
+
+    def _dropout_probability(self, cos_incidence: np.ndarray) -> np.ndarray:
+        """(N,) probability of losing each point. Only rays that may lie beyond
+        ``dropout_start_deg`` need the arccos (a margin keeps the boundary exact); the rest are 0."""
+        p_drop = np.zeros(len(cos_incidence))
+        near = np.flatnonzero(cos_incidence < np.cos(np.radians(self.dropout_start_deg)) + 1e-9)
+        if near.size:
+            theta = np.degrees(np.arccos(cos_incidence[near]))
+            span = max(self.dropout_full_deg - self.dropout_start_deg, 1e-12)
+            p_drop[near] = np.clip((theta - self.dropout_start_deg) / span, 0.0, 1.0)
+        return p_drop
 
     def apply(self, hits: ScanGeometry, rng: np.random.Generator) -> np.ndarray:
         """(M, 3) noisy points [m] of one scan of ``hits`` (see :meth:`sample`)."""
         return self.sample(hits, rng).points_m
+
+
+def _rigid(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``pose`` (4, 4) applied to ``points`` (N, 3), one output column at a time: four times
+    faster than ``points @ R.T + t`` here (numpy's matmul takes a slow path for a 3x3 right
+    factor), equal to it within an ulp."""
+    out = np.empty_like(points)
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    for row in range(3):
+        rot = pose[row, :3]
+        out[:, row] = x * rot[0] + y * rot[1] + z * rot[2] + pose[row, 3]
+    return out
 
 
 def scaled_noise(noise: ScanNoise, scale: float) -> ScanNoise:

@@ -1,0 +1,187 @@
+"""The discrimination design (vtestbed.design.discriminate) against closed forms and brute force.
+
+Real components: the KR60's nominal kinematics (Pinocchio), the paper's lab, the candidate
+terms of the discrepancy workflow. References: the prediction difference of a coupling term
+computed from Pinocchio Jacobians and the wire's geometry directly; T by ``numpy.linalg.lstsq``
+on the stacked whitened arrays (not the normal equations the design updates); every subset of
+a small pool; the identity ``in-plane hinge at mid-link 2 = (A_2 + A_3 + coupling(2,3)) / 4``.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+import pytest
+
+from vtestbed.dataset import DatasetSetup
+from vtestbed.design import discriminate as disc
+from vtestbed.design.kappa import inv_kappa_batch
+from vtestbed.design.optimal import nominal_wrench, sensor_load
+from vtestbed.design.priors import PAPER_TABLE5
+from vtestbed.errors import OutOfRangeError, UnknownNameError
+from vtestbed.lab import PAPER_LAB
+from vtestbed.researcher.candidates import candidates
+from vtestbed.researcher.diagnose import Whitener
+from vtestbed.researcher.kinematics import ArmKinematics
+from vtestbed.researcher.noise_floor import NoiseFloor
+from vtestbed.robots import load_robot
+
+SIGMA = np.array([5.3e-6] * 3 + [8.5e-6] * 3)  # m, rad: the scanner's displacement noise
+
+
+@pytest.fixture(scope="module")
+def lab_model():
+    robot = load_robot("kuka_kr60_3")
+    kin = ArmKinematics(robot, PAPER_LAB.block_in_flange)
+    setup = DatasetSetup(robot.name, "dh", PAPER_LAB.block_in_flange, PAPER_LAB.sensor_in_flange,
+                         PAPER_LAB.block.edge, PAPER_LAB.sensor.name, PAPER_LAB.sensor.wrench_range)  # fmt: skip
+    rng = np.random.default_rng(11)
+    pool = disc.test_pool(robot, PAPER_LAB, rng, n_poses=12, tensions=(200.0,))
+    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=10**9, n_tests=20))
+    terms = {c.label: c for c in candidates(kin)}
+    return robot, kin, setup, pool, white, terms
+
+
+def _hyp(label, terms, x_terms=()):
+    c = 1.0 / PAPER_TABLE5.stiffness  # rad/(N*m)
+    return disc.Hypothesis(label, tuple(terms), c, np.concatenate([c, x_terms]), 0.0)
+
+
+def test_pool_is_feasible_on_the_nominal_model(lab_model):
+    robot, kin, _, pool, _, _ = lab_model
+    assert len(pool) > 12  # several hooks and rings per pose
+    q = np.array([t.q for t in pool])
+    assert np.all(q >= robot.lower - 1e-12) and np.all(q <= robot.upper + 1e-12)
+    assert np.all(inv_kappa_batch(robot, q, "wrist") >= disc.MIN_INV_KAPPA)
+    assert np.all(disc.DEFAULT_CONSTRAINTS.ok(robot, q))
+    limit = np.asarray(PAPER_LAB.sensor.wrench_range)
+    for t in pool:
+        wrench, u, hook, _ = nominal_wrench(kin, PAPER_LAB, t.q, t.hook, t.anchor, t.tension)
+        # an independent check of the wire's force: tension along hook -> ring
+        ring = PAPER_LAB.table.anchor(t.anchor)
+        np.testing.assert_allclose(wrench[:3], t.tension * (ring - hook) / np.linalg.norm(ring - hook))
+        assert np.all(np.abs(sensor_load(kin, PAPER_LAB, t.q, wrench)) <= limit)
+
+
+def test_difference_criterion_picks_the_largest_known_difference(lab_model):
+    """Models a (coupling(5,6) with c56) and b (none) differ by c56 (J5 (J6.F) + J6 (J5.F)) per test."""
+    robot, kin, setup, pool, white, terms = lab_model
+    old = disc.proposed_context(kin, setup, PAPER_LAB, pool[:3])
+    ctx = disc.proposed_context(kin, setup, PAPER_LAB, pool)
+    c56 = 2e-8
+    a = _hyp("a", [terms["joint_coupling(5,6)"]], [c56])
+    b = _hyp("b", [])
+    blocks = [disc.pair_blocks(a, b, old, ctx, white, "difference")]
+    choice = disc.choose(blocks, 3, "difference")
+    expected = []
+    for t in pool:
+        wrench, *_, block = nominal_wrench(kin, PAPER_LAB, t.q, t.hook, t.anchor, t.tension)
+        jac = kin.jacobian(t.q, frame="base")  # base axes: the difference's norm is rotation invariant
+        rot = np.kron(np.eye(2), block[:3, :3].T)
+        j5, j6 = jac[:, 4], jac[:, 5]
+        delta = rot @ (c56 * (j5 * (j6 @ wrench) + j6 * (j5 @ wrench)))
+        expected.append(np.sum((delta / SIGMA) ** 2) / white.inflation)  # the floor's nu/(nu-7)
+    expected = np.array(expected)
+    assert set(choice.indices) == set(np.argsort(expected)[::-1][:3])
+    old_part = choice.before["a vs b"]
+    np.testing.assert_allclose(
+        choice.after["a vs b"] - old_part, expected[list(choice.indices)].sum(), rtol=1e-9
+    )
+
+
+def _t_direct(a, b, old, ctx, white, subset):
+    """T of (a true, b rival) on the old tests plus ``subset``, by lstsq on the stacked arrays."""
+    rows = np.array([6 * i + k for i in subset for k in range(6)], dtype=int)
+    y = np.concatenate([white(a.predict(old)), white(a.predict(ctx))[rows]])
+    x = np.vstack([white(b.columns(old)), white(b.columns(ctx))[rows]])
+    coef, *_ = np.linalg.lstsq(x / np.linalg.norm(x, axis=0), y, rcond=None)
+    return float(np.sum((y - (x / np.linalg.norm(x, axis=0)) @ coef) ** 2))
+
+
+def test_t_optimal_matches_brute_force(lab_model):
+    """link 3 against coupling(4,5) (canonical correlation 0.99 on the paper's tests): k = 2 of 12."""
+    robot, kin, setup, pool, white, terms = lab_model
+    small = pool[:: max(1, len(pool) // 12)][:12]
+    old = disc.proposed_context(kin, setup, PAPER_LAB, pool[-4:])
+    ctx = disc.proposed_context(kin, setup, PAPER_LAB, small)
+    a = _hyp("link3", [terms["link_compliance(link 3)"]], [3e-7, 4e-7, 5e-7])
+    b = _hyp("c45", [terms["joint_coupling(4,5)"]], [1e-8])
+    choice = disc.choose([disc.pair_blocks(a, b, old, ctx, white, "T")], 2, "T")
+    brute = {s: _t_direct(a, b, old, ctx, white, s) for s in combinations(range(len(small)), 2)}
+    best = max(brute, key=brute.get)
+    np.testing.assert_allclose(choice.after["link3 vs c45"], brute[tuple(sorted(choice.indices))], rtol=1e-6)
+    np.testing.assert_allclose(choice.before["link3 vs c45"], _t_direct(a, b, old, ctx, white, ()), rtol=1e-6)
+    assert set(choice.indices) == set(best)
+    assert brute[best] > 3 * choice.before["link3 vs c45"]  # the tests add what the old ones lacked
+
+
+def test_nested_direction_is_dropped(lab_model):
+    """In-plane hinge at mid-link 2 = (A_2 + A_3 + coupling(2,3)) / 4: link 2 reproduces a coupling."""
+    robot, kin, setup, pool, white, terms = lab_model
+    old = disc.proposed_context(kin, setup, PAPER_LAB, pool[:4])
+    ctx = disc.proposed_context(kin, setup, PAPER_LAB, pool)
+    c = _hyp("x", []).compliance
+    a_cols = disc.Hypothesis("x", (), c, c, 0.0).columns(ctx)
+    hinge = terms["link_compliance(link 2)"].columns(ctx, c)[:, 0]
+    coupling = terms["joint_coupling(2,3)"].columns(ctx, c)[:, 0]
+    np.testing.assert_allclose(4 * hinge, a_cols[:, 1] + a_cols[:, 2] + coupling, rtol=1e-9,
+                               atol=1e-9 * np.abs(hinge).max())  # fmt: skip
+    coup = _hyp("coupling", [terms["joint_coupling(2,3)"]], [5e-8])
+    link = _hyp("link2", [terms["link_compliance(link 2)"]], [2e-7, 3e-7, 4e-7])
+    blocks = [disc.pair_blocks(p, q, old, ctx, white) for p, q in ((coup, link), (link, coup))]
+    choice = disc.choose(blocks, 3)
+    assert choice.nested == [("coupling", "link2")]
+    assert choice.pairs == [("link2", "coupling")]
+    assert choice.separation_after > choice.separation_before
+
+
+def _report(rounds, alpha=0.01):
+    return {"alpha": alpha, "rounds": rounds}
+
+
+def _row(label, p, bic, sig, df=1):
+    return {"label": label, "p_value": p, "bic": bic, "significant": sig, "df": df}
+
+
+def test_rivals_from_report():
+    tests = [_row("a", 1e-9, 100.0, True), _row("b", 1e-8, 105.0, True), _row("c", 0.5, 140.0, False)]
+    conf = disc.rivals_from_report(_report([{"base": [], "chosen": "a", "runner_up": "b", "delta_bic": 5.0,
+                                              "tests": tests}]))  # fmt: skip
+    assert conf == {"reason": "confusable", "base_terms": [], "round": 0, "rivals": ["a", "b"]}
+    # chosen with adjusted p = 3 * 1e-3 = 3e-3 > alpha / 10: marginal
+    weak = [_row("a", 1e-3, 100.0, True), _row("b", 0.5, 130.0, False), _row("c", 0.5, 140.0, False)]
+    rnd = {"base": ["x"], "chosen": "a", "runner_up": None, "delta_bic": None, "tests": weak}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a"]
+    # a weak name with a plausible rival 4 BIC behind (adjusted p 3 * 0.01 = 0.03 < 10 alpha)
+    weak[1] = _row("b", 0.01, 104.0, False)
+    rnd = {"base": [], "chosen": "a", "runner_up": None, "delta_bic": None, "tests": weak}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a", "b"]
+    # nothing chosen, best adjusted p = 3 * 0.02 = 0.06 < 10 alpha: marginal; 3 * 0.2 = 0.6 is not
+    near = [_row("a", 0.02, 100.0, False), _row("b", 0.2, 101.0, False), _row("c", 0.9, 99.0, False, 0)]
+    rnd = {"base": [], "chosen": None, "runner_up": None, "delta_bic": None, "tests": near}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a"]
+    decisive = [_row("a", 1e-12, 100.0, True), _row("b", 1e-3, 130.0, True)]
+    rounds = [{"base": [], "chosen": "a", "runner_up": "b", "delta_bic": 30.0, "tests": decisive},
+              {"base": ["a"], "chosen": None, "runner_up": None, "delta_bic": None,
+               "tests": [_row("b", 0.9, 100.0, False)]}]  # fmt: skip
+    assert disc.rivals_from_report(_report(rounds)) is None
+
+
+def test_bad_input(lab_model):
+    robot, kin, setup, pool, white, terms = lab_model
+    ctx = disc.proposed_context(kin, setup, PAPER_LAB, pool[:4])
+    blocks = [disc.pair_blocks(_hyp("a", [terms["scanner_scale"]], [1e-3]), _hyp("b", []), ctx, ctx, white)]
+    with pytest.raises(OutOfRangeError, match="k = 0"):
+        disc.choose(blocks, 0)
+    with pytest.raises(OutOfRangeError, match="valid range"):
+        disc.choose(blocks, 5)
+    with pytest.raises(UnknownNameError, match="discrimination criterion"):
+        disc.choose(blocks, 1, "D")
+    same = [disc.pair_blocks(_hyp("a", []), _hyp("b", []), ctx, ctx, white)]
+    with pytest.raises(OutOfRangeError, match="same displacements"):
+        disc.choose(same, 1)
+    with pytest.raises(UnknownNameError, match="rival model"):
+        disc.fit_hypotheses(ctx, white, [], ["nonsense"], list(terms.values()))
+    with pytest.raises(OutOfRangeError, match="n_poses"):
+        disc.test_pool(robot, PAPER_LAB, np.random.default_rng(0), n_poses=0)

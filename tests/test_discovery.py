@@ -1,0 +1,192 @@
+"""``vtestbed discover``: the loop simulate -> diagnose -> propose -> simulate more -> diagnose.
+
+One small real run (MuJoCo world, ray-cast scans, open3d fits): 8 of the paper's tests with 2
+repeat scans and an A2-A3 coupling hidden in the world, which ``link_compliance(link 2)`` contains
+(so the two are confusable by construction). References: a from-scratch ``simulate`` of the
+combined scenario file (the extended dataset must hold exactly its numbers: same seed stream,
+new test ids), the original scenario (the file round trip keeps its poses and hidden world),
+the design's T recomputed from the proposed tests by a direct least-squares refit of each rival
+(``numpy.linalg.lstsq`` on the stacked whitened arrays, not the normal equations the design
+updates), and ``tomllib`` reading back what the one TOML writer wrote.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from vtestbed.design import discriminate as disc
+from vtestbed.discovery import _researcher_view, discover, proposal_text, scenario_text, toml_text
+from vtestbed.errors import ScenarioError
+from vtestbed.experiment import simulate
+from vtestbed.files import read_toml
+from vtestbed.scenario import load_scenario, parse_scenario
+
+cli_main = importlib.import_module("vtestbed.cli.main")
+ROOT = Path(__file__).resolve().parents[1]
+HIDDEN = ROOT / "scenarios" / "kr60_hidden_link.toml"
+
+
+def _small_scenario(tmp_path: Path, repeats: int = 2) -> Path:
+    data = read_toml(HIDDEN, "scenario file", ScenarioError)
+    data["name"] = "discover_small"
+    data["poses"]["angles_deg"] = data["poses"]["angles_deg"][:8]
+    data["load"]["hook"], data["load"]["anchor"] = data["load"]["hook"][:8], data["load"]["anchor"][:8]
+    data.pop("validation")
+    data["scanner"]["repeats"] = repeats
+    data["world"] = {
+        "effects": [{"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -8.0e4}]
+    }
+    path = tmp_path / "small.toml"
+    path.write_text(toml_text(data))  # the writer under test writes the input too
+    return path
+
+
+def _rows(path: Path) -> dict:
+    with open(path, newline="") as fh:
+        return {r["test_id"]: r for r in csv.DictReader(fh)}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("discover")
+    scenario = load_scenario(_small_scenario(tmp))
+    result = discover(scenario, tmp / "out", extra_tests=3, n_poses=40)
+    return scenario, result, tmp / "out"
+
+
+def test_written_scenario_round_trips(tmp_path):
+    """The TOML writer: the file it writes parses to the scenario its mapping describes."""
+    path = _small_scenario(tmp_path)
+    again = load_scenario(path)
+    original = parse_scenario(read_toml(HIDDEN, "scenario file", ScenarioError))
+    np.testing.assert_allclose(again.poses, original.poses[:8], atol=1e-12)
+    assert again.load.hooks == original.load.hooks[:8]
+    assert again.load.anchors == original.load.anchors[:8]
+    assert again.load.tensions == original.load.tensions[:8]
+    assert again.seed == original.seed and again.scanner.distance == original.scanner.distance
+    assert again.force_sensor == original.force_sensor and again.scanner.repeats == 2
+    assert [e.to_dict() for e in again.effects] == [
+        {"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -8.0e4}
+    ]
+
+
+def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
+    scenario, result, out = run
+    # seeded: nothing named before, the coupling's evidence marginal; named after, still confusable
+    # with link 2, which contains it (no test can reject the larger model)
+    assert result["named_before"] == []
+    assert result["rivals"] == {"reason": "marginal", "rivals": ["baseline", "joint_coupling(2,3)"],
+                                "base_terms": [], "round": 0}  # fmt: skip
+    assert result["named_after"] == ["joint_coupling(2,3)"]
+    assert [(c["chosen"], c["runner_up"]) for c in result["confusable_after"]] == [
+        ("joint_coupling(2,3)", "link_compliance(link 2)")
+    ]
+    prop = result["proposal"]
+    assert len(prop["tests"]) == 3
+    combined = load_scenario(out / "round1" / "scenario.toml")
+    # the same hidden world, the same tests first, then the proposal's (DH degrees, exact)
+    assert [e.to_dict() for e in combined.effects] == [e.to_dict() for e in scenario.effects]
+    np.testing.assert_allclose(combined.poses[:8], scenario.poses, atol=1e-12)
+    np.testing.assert_allclose(np.degrees(combined.poses[8:]), [t["q_deg"] for t in prop["tests"]], atol=1e-9)
+    assert list(combined.load.hooks[8:]) == [t["hook"] for t in prop["tests"]]
+    assert load_scenario(out / "proposal.toml").n_tests == 3  # the to-do list is a scenario too
+    # the extended dataset is what simulate writes for the combined scenario from scratch
+    fresh = simulate(combined, tmp_path / "fresh")
+    ext, ref = _rows(out / "round1" / "dataset" / "tests.csv"), _rows(fresh / "tests.csv")
+    assert sorted(ext) == sorted(ref) == [f"T{i:03d}" for i in range(1, 12)]
+    for tid in ("T001", "T009", "T011"):
+        for key in ("loaded_Fx_N", "loaded_Tz_Nm", "unloaded_Fz_N", "q2_deg"):
+            assert float(ext[tid][key]) == pytest.approx(float(ref[tid][key]), rel=1e-12, abs=1e-12)
+    md = (out / "discover.md").read_text()
+    assert "**Before**: named nothing." in md and "**After**: named `joint_coupling(2,3)`." in md
+    assert "**Undecided** (marginal): `baseline`, `joint_coupling(2,3)`." in md
+
+
+def _t_direct(a, b, white, *contexts) -> float:
+    """T of (a true, b rival) on the contexts' tests: b refitted to a's predictions by lstsq."""
+    y = np.concatenate([white(a.predict(c)) for c in contexts])
+    x = np.vstack([white(b.columns(c)) for c in contexts])
+    x = x / np.linalg.norm(x, axis=0)
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    return float(np.sum((y - x @ coef) ** 2))
+
+
+def test_predicted_separation_is_the_refit_on_the_proposed_tests(run):
+    """The reported T: each ordered pair's rival refitted to the true model's predictions on the
+    round-0 tests plus the 3 proposed ones (read back from discover.json), by least squares."""
+    scenario, result, out = run
+    prop, rivals = result["proposal"], result["rivals"]
+    ctx, white, pool = _researcher_view(out / "round0" / "dataset")
+    hyps = {h.label: h for h in disc.fit_hypotheses(ctx, white, [], rivals["rivals"], pool)}
+    tests = [SimpleNamespace(q=np.radians(t["q_deg"]), hook=t["hook"], anchor=t["anchor"], tension=t["tension_N"])
+             for t in prop["tests"]]  # fmt: skip
+    new = disc.proposed_context(ctx.kin, ctx.setup, scenario.lab, tests)
+    # baseline nests in the coupling model: only "coupling true, baseline rival" counts
+    assert prop["pairs"] == [["joint_coupling(2,3)", "baseline"]]
+    assert prop["nested_pairs"] == [["baseline", "joint_coupling(2,3)"]]
+    a, b = hyps["joint_coupling(2,3)"], hyps["baseline"]
+    assert prop["separation_after"] == pytest.approx(_t_direct(a, b, white, ctx, new), rel=1e-6)
+    assert prop["separation_before"] == pytest.approx(_t_direct(a, b, white, ctx), rel=1e-6)
+    assert _t_direct(b, a, white, ctx, new) < 1e-9 * np.sum(white(b.predict(ctx)) ** 2)  # nested
+    assert prop["separation_after"] == pytest.approx(42.29, abs=0.01)  # the seeded run's value
+    assert prop["separation_before"] == pytest.approx(10.33, abs=0.01)
+
+
+def test_one_toml_writer_escapes_quotes_and_backslashes(run, tmp_path):
+    """Names with a quote and a backslash round-trip through tomllib, in each file discover writes."""
+    scenario, result, _ = run
+    weird = 'say "hi" \\ C:\\lab\ttab\nline\x7f é'
+    data = {"name": weird, "a key": {"x": [1.5, float("inf"), True, 'q"uote']}, "t": [{'k"': 1}]}
+    assert tomllib.loads(toml_text(data)) == data
+    tests = [SimpleNamespace(q=np.radians(t["q_deg"]), hook=t["hook"], anchor=t["anchor"], tension=t["tension_N"])
+             for t in result["proposal"]["tests"]]  # fmt: skip
+    combined = tomllib.loads(scenario_text(scenario, tests, weird, weird + " described"))
+    assert combined["name"] == weird and combined["description"] == weird + " described"
+    assert len(combined["poses"]["angles_deg"]) == 11 and combined["world"] == scenario.raw["world"]
+    choice = SimpleNamespace(criterion="T", separation_before=1.0, separation_after=2.0)
+    prop = disc.Proposal("marginal", (), ('rival "1"', "back\\slash"), tuple(tests), choice, 0)
+    text = proposal_text(prop, weird, scenario.robot_name)
+    parsed = tomllib.loads(text)
+    assert parsed["name"] == weird and 'rival "1", back\\slash' in parsed["description"]
+    path = tmp_path / "proposal.toml"
+    path.write_text(text)
+    assert load_scenario(path).n_tests == 3
+
+
+def test_cli_discover_refuses_bad_input(tmp_path, capsys):
+    path = _small_scenario(tmp_path)
+    (tmp_path / "r0").mkdir()
+    no_repeats = _small_scenario(tmp_path / "r0", repeats=0)
+    cases = [
+        ([str(path), "--out", str(tmp_path / "a"), "--extra-tests", "0"], "extra_tests = 0"),
+        ([str(path), "--out", str(tmp_path / "b"), "--alpha", "1.5"], "alpha = 1.5"),
+        ([str(tmp_path / "none.toml"), "--out", str(tmp_path / "c")], "none.toml"),
+        ([str(no_repeats), "--out", str(tmp_path / "d")], "scanner.repeats"),
+    ]
+    for argv, message in cases:
+        code = cli_main.main(["discover", *argv])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and "Traceback" not in err, err
+        assert not (tmp_path / "a" / "round0").exists()
+
+
+def test_cli_choices_match_the_library():
+    import argparse
+
+    from vtestbed.cli import discover as cli_discover
+    from vtestbed.design.discriminate import CRITERIA
+    from vtestbed.discovery import DEFAULT_EXTRA_TESTS
+
+    parser = argparse.ArgumentParser()
+    cli_discover.register(parser.add_subparsers())
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["discover"]
+    opts = {a.dest: a for a in sub._actions}
+    assert tuple(opts["criterion"].choices) == CRITERIA
+    assert opts["extra_tests"].default == DEFAULT_EXTRA_TESTS

@@ -1,0 +1,195 @@
+"""The static solver (vtestbed.world.statics; Rig.solve, Rig.tighten) against independent references.
+
+References: central differences of the generalized force (the tangent stiffness), a second
+solver written here (Newton on a central-difference Jacobian, run to its own floor), Hooke's law
+on MuJoCo's site geometry (the held tension), and the KR60 with its stiffness scaled by 1e-2 and
+1e3 (the round-off test must scale with the robot: a fixed 1e-9 N*m is below the stiff one's floor).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from vtestbed.errors import ConvergenceError, OutOfRangeError, SensorOverloadError
+from vtestbed.world import mjcf
+from vtestbed.world.effects import (
+    BaseCompliance,
+    BlockOffset,
+    GeometricError,
+    GravityCompensator,
+    JointCoupling,
+    LinkCompliance,
+    NonlinearJoint,
+)
+from vtestbed.world.rig import Rig
+
+POSE = np.radians([10.0, -50.0, -30.0, 40.0, 60.0, 30.0])
+ALL_EFFECTS = (
+    LinkCompliance(),
+    JointCoupling(),
+    NonlinearJoint(),
+    GravityCompensator(),
+    BaseCompliance(),
+    GeometricError(),
+    BlockOffset(),
+)
+
+
+def _fd_tangent(rig: Rig, q: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """-d(generalized force)/dq by central differences [N*m/rad]."""
+    out = np.empty((q.size, q.size))
+    for k in range(q.size):
+        dq = np.zeros(q.size)
+        dq[k] = step
+        out[:, k] = -(rig.generalized_force(q + dq) - rig.generalized_force(q - dq)) / (2 * step)
+    return out
+
+
+def _reference_equilibrium(rig: Rig, q: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, float]:
+    """A second solver: plain Newton on a central-difference Jacobian; the best point seen and its
+    max |residual| [N*m] (no tolerance: it runs to its own round-off floor)."""
+    best_q, best_r = q.copy(), np.inf
+    for _ in range(iterations):
+        r = rig.generalized_force(q)
+        if np.abs(r).max() < best_r:
+            best_q, best_r = q.copy(), float(np.abs(r).max())
+        q = q + np.linalg.solve(_fd_tangent(rig, q, 1e-7), r)
+    return best_q, best_r
+
+
+def _wire_tension_by_hand(rig: Rig, qpos: np.ndarray) -> float:
+    """Hooke's law on the hook and anchor sites at ``qpos`` [N]."""
+    rig.generalized_force(qpos)  # places the sites
+    hook = rig.data.site_xpos[rig.model.site(mjcf.WIRE_HOOK_SITE).id]
+    anchor = rig.data.site_xpos[rig.model.site(mjcf.WIRE_ANCHOR_SITE).id]
+    rest = rig.model.tendon_lengthspring[rig.model.tendon(mjcf.WIRE_TENDON).id][1]
+    ea = rig.lab.wire.axial_rigidity
+    return float(ea * (np.linalg.norm(anchor - hook) - rest) / rest)
+
+
+@pytest.mark.parametrize(
+    "effects, external",
+    [((), False), ((NonlinearJoint(),), False), ((JointCoupling(),), False), ((LinkCompliance(),), False),
+     ((GravityCompensator(),), False), ((BaseCompliance(),), False), ((), True)],
+    ids=["clean", "nonlinear_joint", "joint_coupling", "link_compliance", "gravity_compensator",
+         "base_compliance", "external_wrench"],
+)  # fmt: skip
+def test_tangent_stiffness_matches_central_differences(robot, effects, external):
+    rig = Rig(robot, effects=effects)
+    rig.command(POSE)
+    rig.hook("hook_x", "ring_5")
+    if external:
+        rig.apply_external_wrench([300.0, -200.0, 100.0], [10.0, -5.0, 3.0])
+    q = rig.tighten(200.0).qpos_all
+    k, ref = rig.tangent_stiffness(q), _fd_tangent(rig, q)
+    # forward differences inside MuJoCo: ~3e-6 of each row's largest entry (measured)
+    row = np.abs(ref).max(axis=1, keepdims=True)
+    assert np.all(np.abs(k - ref) < 3e-5 * row), np.abs(k - ref).max(axis=1) / row[:, 0]
+    if effects and isinstance(effects[0], NonlinearJoint):  # the effect's own term is in it
+        dq = q[1] - POSE[1]
+        assert 3 * effects[0].k3_Nm_per_rad3 * dq**2 > 1e3 * 3e-5 * row[1, 0]
+
+
+@pytest.mark.parametrize("effects", [(), ALL_EFFECTS], ids=["clean", "all_effects"])
+def test_solve_and_tighten_agree_with_a_second_solver(robot, effects):
+    rig = Rig(robot, effects=effects)
+    rig.command(POSE)
+    rig.hook("hook_y", "ring_4")
+    rng = np.random.default_rng(7)
+    unloaded = rig.solve()
+    ref, _ = _reference_equilibrium(rig, unloaded.qpos_all + rng.uniform(-1e-5, 1e-5, unloaded.qpos_all.size))
+    np.testing.assert_allclose(unloaded.qpos_all, ref, rtol=0, atol=1e-12)
+    loaded = rig.tighten(250.0)  # held tension, then the real wire at the rest length it implies
+    assert abs(loaded.wire_tension - 250.0) < 1e-8
+    ref, _ = _reference_equilibrium(rig, loaded.qpos_all + rng.uniform(-1e-5, 1e-5, loaded.qpos_all.size))
+    np.testing.assert_allclose(loaded.qpos_all, ref, rtol=0, atol=1e-12)
+    # the real wire at that rest length pulls the commanded tension (Hooke's law, site geometry);
+    # 1e-12 rad of round-off in q moves it by EA/L * |J| * 1e-12 ~ 1e-6 N
+    assert _wire_tension_by_hand(rig, ref) == pytest.approx(250.0, abs=1e-5)
+    assert np.all(np.abs(rig.generalized_force(loaded.qpos_all)) <= rig.residual_tolerance(loaded.qpos_all))
+
+
+@pytest.mark.parametrize("scale", [1e-2, 1.0, 1e3])
+def test_the_round_off_test_scales_with_the_robot(robot, truth, scale):
+    stiff = dataclasses.replace(truth, stiffness=tuple(k * scale for k in truth.stiffness))
+    rig = Rig(robot, truth=stiff)
+    rig.command(POSE)
+    rig.hook("hook_x", "ring_5")
+    for solve in (rig.solve, lambda: rig.tighten(200.0)):
+        state = solve()
+        ref, floor = _reference_equilibrium(rig, state.qpos_all + 1e-6)
+        np.testing.assert_allclose(state.qpos_all, ref, rtol=0, atol=1e-12)
+        tol = rig.residual_tolerance(state.qpos_all)
+        assert np.all(np.abs(rig.generalized_force(state.qpos_all)) <= tol)
+        assert floor <= tol.max()  # the second solver's floor is within the tolerance too
+        if scale == 1e3:  # a fixed 1e-9 N*m is out of reach here: the floor itself is above it
+            assert floor > 1e-9
+
+
+def test_the_tolerance_pins_every_joint_to_a_picoradian(robot):
+    rig = Rig(robot)
+    rig.command(POSE)
+    rig.hook("hook_x", "ring_5")
+    q = rig.tighten(200.0).qpos_all
+    tol = rig.residual_tolerance(q)
+    assert np.all(np.abs(rig.generalized_force(q)) <= tol)
+    for j in range(q.size):  # a 1e-12 rad error on any joint fails the test: it can fail
+        dq = np.zeros(q.size)
+        dq[j] = 1e-12
+        assert np.any(np.abs(rig.generalized_force(q + dq)) > tol), j
+
+
+def test_a_failed_tighten_leaves_the_wire_slack_and_names_the_residual(robot):
+    rig = Rig(robot)
+    rig.command(POSE)
+    rig.hook("hook_x", "ring_5")
+    rig.solve()
+    with pytest.raises(ConvergenceError, match=r"did not converge in 0 iterations: residual \|r\[\d\]\|"):
+        rig.tighten(200.0, max_iterations=0)
+    tendon = rig.model.tendon(mjcf.WIRE_TENDON).id
+    assert rig.model.tendon_lengthspring[tendon][1] == mjcf.SLACK_LENGTH
+    assert rig.solve().wire_tension == 0.0
+    with pytest.raises(OutOfRangeError, match=r"max_iterations = -1 must be an integer >= 0"):
+        rig.solve(max_iterations=-1)
+    with pytest.raises(OutOfRangeError, match=r"tol = -1 N\*m is outside the valid range \[0, inf\]"):
+        rig.solve(tol=-1.0)
+
+
+def _random_tests(rig: Rig, n: int, seed: int) -> dict:
+    """Run ``n`` sensor-feasible random tests (pose in the limits, hook, ring, 1-990 N)."""
+    rng = np.random.default_rng(seed)
+    hooks, rings = list(rig.lab.block.hooks), list(rig.lab.table.anchors)
+    out = {"feasible": 0, "overloaded": 0, "worst_tension_error": 0.0, "worst_residual_ratio": 0.0}
+    while out["feasible"] < n:
+        rig.command(rng.uniform(rig.robot.lower, rig.robot.upper))
+        rig.hook(hooks[rng.integers(len(hooks))], rings[rng.integers(len(rings))])
+        rig.solve()
+        tension = rng.uniform(1.0, 990.0)
+        try:
+            state = rig.tighten(tension)  # a ConvergenceError fails the test
+        except SensorOverloadError:
+            out["overloaded"] += 1
+            continue
+        out["feasible"] += 1
+        err = abs(state.wire_tension - tension)
+        out["worst_tension_error"] = max(out["worst_tension_error"], err)
+        ratio = np.max(np.abs(rig.generalized_force(state.qpos_all)) / rig.residual_tolerance(state.qpos_all))
+        out["worst_residual_ratio"] = max(out["worst_residual_ratio"], ratio)
+    return out
+
+
+def _check_random(robot, n):
+    out = _random_tests(Rig(robot), n, seed=2023)
+    print(f"\n{n} random KR60 tests: {out}")
+    assert out["feasible"] == n and out["worst_residual_ratio"] <= 1.0
+    assert out["worst_tension_error"] < 1e-8  # holding the tension: ~1e-10 N, not TENSION_TOL
+
+
+def test_random_kr60_tests_converge(robot):
+    _check_random(robot, 50)
+
+
+@pytest.mark.slow
+def test_1000_random_kr60_tests_converge(robot):
+    _check_random(robot, 1000)

@@ -1,0 +1,46 @@
+"""``vtestbed discover SCENARIO --out DIR``: diagnose, propose discrimination tests, run them, diagnose again."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..files import dumps
+from .args import output_dir
+
+
+def _cmd_discover(args) -> int:
+    from ..discovery import discover, markdown
+    from ..scenario import load_scenario
+
+    result = discover(
+        load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
+        criterion=args.criterion, progress=not args.quiet,
+    )  # fmt: skip
+    if args.json:
+        print(dumps(result, indent=1, default=float))
+        return 0
+    print(markdown(result))
+    print(f"wrote {Path(args.out) / 'discover.json'}, discover.md")
+    return 0
+
+
+def register(sub) -> None:
+    # literals, not imports: building the parser must not load MuJoCo (tests check they match)
+    p = sub.add_parser(
+        "discover",
+        help="simulate, diagnose, propose tests that separate confusable effects, run them, diagnose again",
+    )
+    p.add_argument("scenario", type=Path)
+    p.add_argument(
+        "--out", type=output_dir, required=True, help="output folder (round0/, round1/, discover.json)"
+    )
+    p.add_argument("--extra-tests", type=int, default=10,
+                   help="number of discrimination tests, 1-50 (default %(default)s)")  # fmt: skip
+    p.add_argument(
+        "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
+    )
+    p.add_argument("--criterion", default="T", choices=("T", "difference"),
+                   help="T-optimal (models refitted, default) or the whitened difference of the fitted models")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_discover)

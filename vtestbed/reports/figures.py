@@ -1,0 +1,125 @@
+"""The report's static figures, drawn by the project's own plotting code and embedded as PNG data.
+
+Each figure is drawn from the result files again (not copied from the PNGs beside them), so a
+report is complete even for a run written with ``--no-figures`` and never shows a stale picture.
+The figures are embedded as ``data:image/png;base64`` URIs: the page needs no other file.
+"""
+
+from __future__ import annotations
+
+import base64
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..plotting import pyplot, save_figure
+from ..researcher.discrepancy import COMPONENTS
+
+
+def data_uri(png: bytes) -> str:
+    """``data:image/png;base64,...`` of PNG bytes."""
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def drawn(draw: Callable[[Path], Path]) -> str:
+    """The data URI of the PNG that ``draw(path)`` writes (into a temporary folder)."""
+    with tempfile.TemporaryDirectory(prefix="vtestbed-report-") as tmp:
+        return data_uri(Path(draw(Path(tmp) / "figure.png")).read_bytes())
+
+
+# ---------------------------------------------------------------------- run
+
+
+def convergence(result: dict) -> str:
+    """Paper Fig. 10 from ``result.json``: estimates against the number of tests, relative to the truth."""
+    from ..researcher.report import plot_convergence
+
+    k_true = np.array([j["k_true"] for j in result["joints"]])
+    conv = result["convergence"]
+    conv = {  # strict JSON writes NaN as null
+        **conv,
+        **{
+            k: [[np.nan if v is None else v for v in row] for row in conv[k]]
+            for k in ("stiffness", "stiffness_std")
+        },
+    }
+    names = [j["name"] for j in result["joints"]]
+    return drawn(lambda p: plot_convergence(conv, names, p, reference=k_true))
+
+
+def validation(result: dict) -> str | None:
+    """Paper Fig. 11 from ``result.json`` (None without validation tests)."""
+    from ..researcher.report import plot_validation
+
+    rows = result["validation"]
+    return drawn(lambda p: plot_validation(rows, p)) if rows else None
+
+
+def residuals(result: dict) -> str:
+    """Per component: the identification's residual std, and each validation test's measured minus
+    predicted displacement (um, urad)."""
+    plt = pyplot()
+    std = np.array(result["identification"]["component_std"], dtype=float) * 1e6
+    rows = result["validation"]
+    fig, axes = plt.subplots(1, 2 if rows else 1, figsize=(11 if rows else 5.5, 3.6), squeeze=False)
+    ax = axes[0, 0]
+    ax.bar(COMPONENTS, std, color="#1f4e79")
+    ax.set_ylabel("residual std [um | urad]")
+    ax.set_title("identification: residual std per component", fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+    if rows:
+        ax = axes[0, 1]
+        x = np.arange(6)
+        width = 0.8 / len(rows)
+        for i, r in enumerate(rows):
+            diff = (np.array(r["measured"]) - np.array(r["predicted"])) * 1e6
+            ax.bar(x - 0.4 + (i + 0.5) * width, diff, width, label=r["test_id"])
+        ax.set_xticks(x, COMPONENTS)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_ylabel("measured - predicted [um | urad]")
+        ax.set_title("validation tests: prediction residual per component", fontsize=9)
+        ax.legend(fontsize=7, ncol=min(len(rows), 5))
+        ax.grid(alpha=0.3, axis="y")
+    return drawn(lambda p: save_figure(fig, p, dpi=90))
+
+
+# ---------------------------------------------------------------------- campaign
+
+
+def campaign(trials, manifest: dict) -> tuple[dict, object, dict]:
+    """The campaign's summary, computed and drawn by :mod:`vtestbed.campaigns.report`.
+
+    Returns ``(report, summary, figures)``: the report dict (trends, spread check, pose choice),
+    the per (cell, joint) summary DataFrame and ``{name: data URI}`` of the figures it drew.
+    """
+    from ..campaigns.report import cell_summary, write_report
+
+    with tempfile.TemporaryDirectory(prefix="vtestbed-report-") as tmp:
+        report = write_report(trials, Path(tmp), manifest)
+        figures = {
+            name: data_uri(Path(path).read_bytes())
+            for name, path in report["files"].items()
+            if str(path).endswith(".png")
+        }
+    return report, cell_summary(trials), figures
+
+
+# ---------------------------------------------------------------------- diagnosis
+
+
+def gap(report: dict) -> str:
+    """Per-test residual before and after the named terms (``vtestbed diagnose``'s gap.png)."""
+    from ..researcher.discrepancy import plot_gap
+
+    return drawn(lambda p: plot_gap(report, p))
+
+
+def patterns(report: dict) -> str | None:
+    """The per-test residual against the pose features (None if no feature varies)."""
+    from ..researcher.discrepancy import plot_patterns
+
+    if not any(v["rho"] is not None for v in report["detect"]["patterns"].values()):
+        return None
+    return drawn(lambda p: plot_patterns(report, p))

@@ -1,0 +1,107 @@
+"""The sections of a diagnosis's report (``vtestbed diagnose --out``: ``report.json``).
+
+Stiffness in N*mm/rad, the noise floor in um and urad, residuals as ratios to the noise floor.
+"""
+
+from __future__ import annotations
+
+from ..researcher.discrepancy import COMPONENTS
+from . import figures
+from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
+from .loader import ResultFolder
+
+
+def noise_floor(folder: ResultFolder) -> Section:
+    r = folder.data
+    nf = r["noise_floor"]
+    rows = [[c, Num(s, ".3f", 1e6), Num(n, ".3f")]
+            for c, s, n in zip(COMPONENTS, nf["component_std"], r["detect"]["normalised_residual_rms"])]  # fmt: skip
+    facts = KeyValues([("dataset", r["dataset"]), ("statics of the baseline", r["statics"]),
+                       ("alpha (family-wise)", Num(r["alpha"], "g")),
+                       ("repeat-scan samples", str(nf["n_samples"]))], id="diagnosis-facts")  # fmt: skip
+    table = Table(["component", "noise floor std [um | urad]", "baseline residual RMS / floor"], rows,
+                  id="noise-floor")  # fmt: skip
+    return Section("noise-floor", "Noise floor", [facts, table])
+
+
+def detection(folder: ResultFolder) -> Section:
+    d = folder.data["detect"]
+    verdict = "rejected" if d["model_rejected"] else "consistent with the noise"
+    facts = KeyValues([("chi^2", Num(d["chi2"], ".1f")), ("degrees of freedom", str(d["dof"])),
+                       ("p-value", Num(d["p_value"], ".3g")), ("the paper's model", verdict)], id="detection")  # fmt: skip
+    pats = sorted(
+        ((n, v) for n, v in d["patterns"].items() if v["rho"] is not None), key=lambda kv: kv[1]["p_value"]
+    )
+    rows = [[n, Num(v["rho"], "+.2f"), Num(v["p_value"], ".2g")] for n, v in pats]
+    blocks = [facts, Table(["pose feature", "Spearman rho", "p-value"], rows, id="patterns",
+                           caption="Per-test residual against the pose features, strongest first")]  # fmt: skip
+    fig = figures.patterns(folder.data)
+    if fig:
+        blocks.append(Figure(fig, "Per-test residual against the pose and the load", "fig-patterns"))
+    return Section("detection", "Detection", blocks)
+
+
+def candidates(folder: ResultFolder) -> Section:
+    """Every round's candidate tests: likelihood ratio, p-value, BIC, significance."""
+    blocks = []
+    for i, rnd in enumerate(folder.data["rounds"], start=1):
+        base = ", ".join(rnd["base"]) or "the paper's model"
+        rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t["bic"], ".2f"),
+                 "yes" if t["significant"] else "no"] for t in rnd["tests"]]  # fmt: skip
+        caption = f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
+        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "BIC", "significant"], rows,
+                            id=f"candidates-round-{i}", caption=caption))  # fmt: skip
+    return Section("candidates", "Candidate terms", blocks)
+
+
+def named(folder: ResultFolder) -> Section:
+    """The named effects, their parameters with std, and the stiffness before and after."""
+    r = folder.data
+    text = [f"Named: {', '.join(r['named']) or 'nothing'}."]
+    text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
+    text += [
+        f"{c['chosen']} could also be {c['runner_up']} (BIC only {c['delta_bic']:.1f} apart)"
+        for c in r["confusable"]
+    ]
+    rows = []
+    for label, params in r["model"]["parameters"].items():
+        stds = r["model"]["parameters_std"][label]
+        rows += [[label, p, Num(v, ".4g"), Num(stds[p], ".2g")] for p, v in params.items()]
+    before, after = r["baseline"], r["model"]
+    k_rows = [[f"joint{i + 1}", Num(k0, ".4e", 1e3), Num(s0, ".2e", 1e3), Num(k1, ".4e", 1e3), Num(s1, ".2e", 1e3)]
+              for i, (k0, s0, k1, s1) in enumerate(zip(before["stiffness_Nm_per_rad"], before["stiffness_std_Nm_per_rad"],
+                                                       after["stiffness_Nm_per_rad"], after["stiffness_std_Nm_per_rad"]))]  # fmt: skip
+    return Section("named", "Named effects", [
+        Text(text), Table(["term", "parameter", "value", "std"], rows, id="named-parameters"),
+        Table(["joint", "k before [N*mm/rad]", "std before", "k after [N*mm/rad]", "std after"], k_rows,
+              id="stiffness-before-after")])  # fmt: skip
+
+
+def gap(folder: ResultFolder) -> Section:
+    r = folder.data
+    fit, val = r["identification_fit"], r["validation"]
+    rows = [["identification residual / floor", Num(fit["before"], ".3f"), Num(fit["after"], ".3f")]]
+    if val["before"]:
+        rows.append(["validation prediction error / floor", Num(val["before"]["ratio_to_floor"], ".3f"),
+                     Num(val["after"]["ratio_to_floor"], ".3f")])  # fmt: skip
+    return Section("gap", "The gap before and after", [
+        Table(["", "before", "after"], rows, id="gap-table"),
+        Figure(figures.gap(r), "Per-test RMS whitened residual before and after the named terms", "fig-gap")])  # fmt: skip
+
+
+def scene(folder: ResultFolder) -> Section | None:
+    from .scene import one_test_scene
+
+    if folder.dataset is None:
+        return None
+    view = one_test_scene(folder.dataset)
+    caption = (f"Test {view['test_id']} of {folder.dataset}: robot (nominal, commanded), block (fitted), wire "
+               f"({view['hook']}, measured force), clouds ({view['points'][0]} and {view['points'][1]} points) and fitted faces.")  # fmt: skip
+    return Section("scene", "3-D view of one test", [Plot3D(view["figure_json"], caption, "scene-3d")])
+
+
+def details(folder: ResultFolder) -> Section:
+    return Section("details", "Versions", [KeyValues(versions(folder.data, "report.json"), id="versions")])
+
+
+SECTIONS = [noise_floor, detection, candidates, named, gap, scene, details]
