@@ -264,8 +264,9 @@ def noise_free(prepared):
     return measure_trial(prepared, 0, prepared.identification_tests(), noise=None, sensor=sensor)
 
 
-def reference_floor(repeats: int) -> np.ndarray:
-    """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED): (6, 6)."""
+def reference_floor(repeats: int) -> NoiseFloor:
+    """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED), with its
+    sample count (the whitener divides out the chi^2 inflation of an estimated floor)."""
     prepared, _ = prepared_world(None, 1.0)
     frames = {}
     ms = measure_trial(prepared, REF_SEED, list(prepared.tests))
@@ -274,7 +275,7 @@ def reference_floor(repeats: int) -> np.ndarray:
                                    repeat_rng(REF_SEED, t.group, t.index), repeats)  # fmt: skip
         frames[t.test_id] = scan_frames(record_of(t), None, clouds, prepared.setup, prepared.kinematics,
                                         m.frame_unloaded)  # fmt: skip
-    return noise_floor_from_frames(frames).covariance
+    return noise_floor_from_frames(frames)
 
 
 def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
@@ -297,14 +298,14 @@ def target_lambda(df: int, level: float) -> float:
     return float(brentq(lambda lam: ncx2.sf(crit, df, lam) - LIMIT_POWER, 1e-6, 1e4))
 
 
-def calibrate(name: str, ref_cov: np.ndarray, max_evals: int, statics: str) -> dict:
+def calibrate(name: str, ref_floor: NoiseFloor, max_evals: int, statics: str) -> dict:
     """f_lim for effect ``name``: a secant search on (log f, log lambda), lambda ~ f^2.
 
     f stays within the parameter's range; a world whose scans the researcher cannot reduce any
     more (the block sags out of the crop window) bounds f too: the search then halves the step
     in log f towards the last size that worked.
     """
-    white = Whitener(NoiseFloor(ref_cov, 0, 0))
+    white = Whitener(ref_floor)
     f_range = max_factor(EFFECTS[name](), load_scenario(SCENARIO))
     f_fail = math.inf
     s1 = strength(name, 1.0, white, statics)
@@ -344,11 +345,11 @@ def calibrate(name: str, ref_cov: np.ndarray, max_evals: int, statics: str) -> d
             "f_fail": f_fail, "failed": failed, "history": history}  # fmt: skip
 
 
-def candidate_overlap(ref_cov: np.ndarray, statics: str) -> dict:
+def candidate_overlap(ref_floor: NoiseFloor, statics: str) -> dict:
     """Per candidate: R^2 of its whitened columns on the stiffness columns (the 'absorbed' statistic),
     and per pair: the largest canonical correlation of their columns once the stiffness columns are
     projected out (1 = one can stand in for the other). Clean world, noise-free, reference floor."""
-    white = Whitener(NoiseFloor(ref_cov, 0, 0))
+    white = Whitener(ref_floor)
     prepared, pool = prepared_world(None, 1.0, validation=False)
     ctx = model_context(noise_free(prepared), prepared, statics)
     c = fit_model(ctx, white, []).compliance
@@ -593,11 +594,11 @@ def main() -> None:
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx) as pool:
         ref = pool.submit(reference_floor, 3 if args.quick else REF_REPEATS)
-        ref_cov = ref.result()
+        ref_floor = ref.result()
         print(f"reference floor (clean world, seed {REF_SEED}): std "
-              + " ".join(f"{s * 1e6:.2f}" for s in np.sqrt(np.diag(ref_cov))) + " (um, urad)", file=sys.stderr)  # fmt: skip
-        cal_futures = {pool.submit(calibrate, n, ref_cov, max_evals, args.statics): n for n in names}
-        overlap_future = pool.submit(candidate_overlap, ref_cov, args.statics)
+              + " ".join(f"{s * 1e6:.2f}" for s in np.sqrt(np.diag(ref_floor.covariance))) + " (um, urad)", file=sys.stderr)  # fmt: skip
+        cal_futures = {pool.submit(calibrate, n, ref_floor, max_evals, args.statics): n for n in names}
+        overlap_future = pool.submit(candidate_overlap, ref_floor, args.statics)
         worlds = [(None, "clean", 1.0)] + [(n, "realistic", 1.0) for n in names]
         pending, results, t_prep = {}, {}, 0.0
         seed_list = [SEED0 + k for k in range(seeds)]

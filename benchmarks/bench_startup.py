@@ -60,9 +60,11 @@ from vtestbed.campaigns.worker import run_batch
 t_import = time.perf_counter() - t0
 rss_import = int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
 result = run_batch(batch)
+from vtestbed.campaigns import worker
+held = sum(p.nbytes for p in worker._CACHE.values()) / 2**20
 heavy = [m for m in ("pandas", "pyarrow", "matplotlib", "dash", "plotly", "open3d", "scipy.stats") if m in sys.modules]
 print(json.dumps({"import_s": t_import, "rss_import": rss_import, "prepare_s": result.prepare_s,
-                  "trial_s": result.compute_s / len(batch.trials), "peak": result.peak_rss_mib, "heavy": heavy}))
+                  "trial_s": result.compute_s / len(batch.trials), "peak": result.peak_rss_mib, "held": held, "heavy": heavy}))
 """
 
 
@@ -109,7 +111,7 @@ def worker_figures(repeats: int) -> dict:
             out = subprocess.run([sys.executable, "-c", WORKER_PROBE, str(task)], capture_output=True, text=True,
                                  check=True, env=_env())  # fmt: skip
             runs.append(json.loads(out.stdout.splitlines()[-1]))
-    keys = ("import_s", "rss_import", "prepare_s", "trial_s", "peak")
+    keys = ("import_s", "rss_import", "prepare_s", "trial_s", "peak", "held")
     return {k: float(np.median([r[k] for r in runs])) for k in keys} | {"heavy": runs[-1]["heavy"]}
 
 
@@ -139,7 +141,7 @@ def main() -> None:
     w = worker_figures(max(1, args.repeats // 2))
     print("\ncampaign worker (unpickle a task, import, prepare 20 tests, 2 trials of 20 tests):")
     print(f"  import {w['import_s']:.2f} s, {w['rss_import']:.0f} MiB; prepare {w['prepare_s']:.2f} s; "
-          f"trial {w['trial_s']:.2f} s")  # fmt: skip
+          f"trial {w['trial_s']:.2f} s; prepared physics held {w['held']:.0f} MiB")  # fmt: skip
     verdict = "meets" if w["peak"] <= TARGET_WORKER_PEAK_MIB else "misses"
     print(f"  peak resident {w['peak']:.0f} MiB   target <= {TARGET_WORKER_PEAK_MIB:.0f} MiB: {verdict}")
     print(f"  heavy modules loaded: {', '.join(w['heavy']) or 'none'}")

@@ -155,7 +155,7 @@ def test_feasibility_is_the_truth_worlds_verdict_and_is_cached(generated):
     c, _ = generated
     checker = posesets.FeasibilityChecker(c.scenario)
     q = np.radians([0.0, -60.0, -20.0, 30.0, 50.0, 45.0])
-    assert checker.check(q, "hook_x", "ring_5", 200.0) is None
+    assert checker.check(q, "hook_x", "ring_2", 200.0) is None  # (hook_x, ring_5) cuts 4.8 mm into the block
     verdict = checker.check(q, "hook_edge", "ring_9", 900.0)  # the torque about the sensor overloads it
     assert re.match(
         r"SensorOverloadError: .*T[xyz] = .* outside the measuring range \[-30, 30\] N\*m", verdict

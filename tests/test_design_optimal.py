@@ -31,7 +31,9 @@ POSES_DEG = [
 
 @pytest.fixture(scope="module")
 def candidates(robot, lab):
-    return design.candidate_tests(robot, np.radians(POSES_DEG), lab=lab)
+    return design.candidate_tests(
+        robot, np.radians(POSES_DEG), lab=lab, clearance=False
+    )  # the pool this test was written for
 
 
 def test_candidates_are_filtered_and_complete(candidates, lab):

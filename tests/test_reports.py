@@ -129,7 +129,7 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
     for row, k1 in zip(k, report["model"]["stiffness_Nm_per_rad"]):
         close(row[3], k1 * 1e3, 5)
     assert "link_compliance(link 2)" in report["named"]  # the hidden link is found, as in the README
-    assert "fig-gap" in t.ids and "scene-3d" in t.ids
+    assert "fig-gap" in t.ids and "fig-effect" in t.ids and "scene-3d" in t.ids
 
 
 def test_pages_are_self_contained_and_small(pages):

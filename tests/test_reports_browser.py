@@ -23,7 +23,7 @@ SECTIONS = {
 FIGURES = {
     "run": ["fig-convergence", "fig-validation", "fig-residuals"],
     "campaign": ["fig-error-vs-noise", "fig-error-vs-tests", "fig-spread"],
-    "diagnosis": ["fig-patterns", "fig-gap"],
+    "diagnosis": ["fig-patterns", "fig-gap", "fig-effect"],
 }
 
 

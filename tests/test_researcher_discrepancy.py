@@ -159,8 +159,17 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert fit["before"] > 1.5 and fit["after"] < 1.15
     val = report["validation"]
     assert val["after"]["ratio_to_floor"] < val["before"]["ratio_to_floor"]
-    for name in ("report.json", "report.md", "gap.png", "patterns.png", "model.json"):
+    for name in ("report.json", "report.md", "gap.png", "patterns.png", "effect.png", "model.json"):
         assert (tmp_path / "diag" / name).stat().st_size > 100
+    # the named effect's figure: what the terms explain is the drop of chi^2, and it is most of it
+    effect = report["effect"]
+    assert effect["terms"] == report["named"]
+    chi2_ratio = report["model"]["chi2"] / report["baseline"]["chi2"]
+    assert effect["explained_fraction"] == pytest.approx(1.0 - chi2_ratio, rel=1e-9)
+    assert effect["explained_fraction"] > 0.5
+    before, explained = np.array(effect["baseline_whitened"]), np.array(effect["explained_whitened"])
+    assert before.shape == explained.shape == (20, 6)
+    assert np.corrcoef(before.ravel(), explained.ravel())[0, 1] > 0.7  # points along the diagonal
     # the paper's tests never move A1 (and keep A6 at 45 deg): no pattern can be read against them
     patterns = report["detect"]["patterns"]
     assert patterns["q1_deg"]["note"] == patterns["q6_deg"]["note"] == "constant over the tests"

@@ -77,3 +77,43 @@ def test_jacobian_in_tool_frame_is_the_rotated_base_jacobian(robot, lab):
 def test_unknown_jacobian_frame_lists_valid_names(robot):
     with pytest.raises(KeyError, match="base, tool"):
         ArmKinematics(robot).jacobian(np.zeros(6), frame="world")
+
+
+def test_base_and_flange_transforms_are_honoured_everywhere(robot, truth, lab):
+    """The KR60 between an arbitrary base and flange transform: Pinocchio, MuJoCo, the
+    description's own frames and the design's DH frames all equal base @ explicit DH @ flange."""
+    from dataclasses import replace
+
+    from vtestbed.design import kappa
+
+    rng = np.random.default_rng(4)
+
+    def rigid():
+        out = np.eye(4)
+        out[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        out[:3, 3] = rng.uniform(-0.3, 0.3, 3)
+        return tuple(tuple(float(x) for x in row) for row in out)
+
+    moved = replace(robot, dh0_in_base=rigid(), flange_in_dh=rigid())
+    base, flange = moved.base_transform, moved.flange_transform
+    kin = ArmKinematics(moved, lab.block_in_flange)
+    model = mjcf.build_scene_spec(moved, truth, lab).compile()
+    data = mujoco.MjData(model)
+    site = model.site(mjcf.BLOCK_SITE).id
+    for _ in range(20):
+        q = moved.random_pose(rng)
+        expected = base @ dh_flange_pose(q) @ flange @ lab.block_in_flange
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        mj_pose = np.eye(4)
+        mj_pose[:3, :3], mj_pose[:3, 3] = data.site_xmat[site].reshape(3, 3), data.site_xpos[site]
+        for pose in (kin.tool_pose(q), mj_pose, moved.frame_poses(q)[-1] @ lab.block_in_flange):
+            np.testing.assert_allclose(pose, expected, atol=1e-12)
+        rot, pos = kappa.dh_frames(moved, q[None])
+        dh6 = base @ dh_flange_pose(q)
+        np.testing.assert_allclose(rot[0, 5], dh6[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(pos[0, 5], dh6[:3, 3], atol=1e-12)
+        jac = kin.jacobian(q)
+        np.testing.assert_allclose(
+            jac[:3], base[:3, :3] @ _fd_jacobian(q, flange @ lab.block_in_flange)[:3], atol=1e-8
+        )

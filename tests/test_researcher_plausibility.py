@@ -122,8 +122,9 @@ def test_swapped_scans_warn_and_strict_refuses_through_the_command(tmp_path, cap
     swapped = rows[3][0]
 
     assert main(["identify", str(out), "--quiet", "--no-truth"]) == 0
-    printed = capsys.readouterr().out
-    assert f"warning: tests {swapped}: the block moved against the load" in printed
+    printed = capsys.readouterr()
+    note = f"warning: tests {swapped}: the block moved against the load"
+    assert (printed.out + printed.err).count(note) == 1  # once, in words
     assert main(["identify", str(out), "--quiet", "--no-truth", "--strict"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"implausible measurements (--strict): tests {swapped}: the block moved against the load" in err

@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from quick_campaign import BASE_TEXT, tiny
 
@@ -64,6 +65,28 @@ def test_a_worker_process_loads_no_reporting_libraries_and_computes_the_trial(tm
         assert row[f"k_{name}"] == ref.stiffness[j]
         assert row[f"k_std_{name}"] == ref.stiffness_std[j]
     assert 50.0 < report["peak"] < 2000.0  # MiB: the figure is reported (the target is a benchmark's)
+
+
+def test_prepared_tests_share_one_ray_table_and_rebuild_the_cast_hits_bit_for_bit():
+    from vtestbed.world.physics import run_test_physics
+    from vtestbed.world.rig import Rig
+    from vtestbed.world.truth import load_truth
+
+    sc = tiny().scenario
+    load = sc.load
+    four = dataclasses.replace(
+        sc, poses=sc.poses[:4], load=LoadPlan(load.hooks[:4], load.anchors[:4], load.tensions[:4])
+    )
+    prepared = montecarlo.prepare(four)
+    assert len({id(t.rays) for t in prepared.tests}) == 1  # one table for the list, not one per test
+    rig = Rig(four.robot, four.lab, truth=load_truth(four.robot_name), effects=four.effects)
+    for i, t in enumerate(prepared.tests):
+        phys = run_test_physics(rig, four.poses[i], load.hooks[i], load.anchors[i], load.tensions[i],
+                                four.scanner.distance, four.scanner.placement)  # fmt: skip
+        for cast, kept in ((phys.hits_unloaded, t.hits_unloaded), (phys.hits_loaded, t.hits_loaded)):
+            assert np.array_equal(kept.points_m, cast.points_m)
+            assert np.array_equal(kept.directions, cast.directions)
+            assert np.array_equal(kept.cos_incidence, cast.cos_incidence)
 
 
 def _children(pid: int) -> dict[int, str]:

@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,7 @@ from vtestbed.errors import (
     UnknownNameError,
 )
 from vtestbed.researcher.kinematics import ArmKinematics
-from vtestbed.robots import load_robot
+from vtestbed.robots import available_robots, load_robot
 from vtestbed.transforms import displacement
 from vtestbed.world.rig import Rig
 from vtestbed.world.truth import load_truth
@@ -142,7 +144,10 @@ def test_bad_inputs_get_clear_errors(rig):
         rig.hook(anchor="ring_42")
     with pytest.raises(UnknownNameError, match="hook_edge, hook_x, hook_y"):
         rig.hook(hook="eye")
-    with pytest.raises(UnknownNameError, match="kuka_kr60_3"):
+    with pytest.raises(
+        UnknownNameError,
+        match=re.escape(f"unknown robot 'kuka_kr6'; valid names: {', '.join(available_robots())}"),
+    ):
         load_robot("kuka_kr6")
     for tension in (-5.0, 0.0, 0.5, 1000.0, float("nan")):  # the lab's one tension rule
         with pytest.raises(OutOfRangeError, match=r"wire tension .* \[1, 990\] N"):

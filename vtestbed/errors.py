@@ -44,6 +44,10 @@ class SensorOverloadError(OutOfRangeError):
     """A wrench outside the force/torque sensor's measuring range."""
 
 
+class ClearanceError(VtestbedError, ValueError):
+    """A test whose pose puts a link into the table, the wire through a link, or blocks the scanner."""
+
+
 class ConvergenceError(VtestbedError, RuntimeError):
     """An iterative solver did not reach its tolerance."""
 

@@ -190,7 +190,7 @@ def simulate(
                 if tid not in writer.done or todo:
                     phys = run_test_physics(
                         rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
-                        placement, timings,
+                        placement, timings, label=f"{'poses' if group == 'identification' else 'validation'}.angles_deg[{i}]",
                     )  # fmt: skip
                 if todo:  # before the test's row: a resumed run finds the test finished only with them
                     t2 = time.perf_counter()

@@ -1,6 +1,7 @@
 """Nominal robot descriptions: modified-DH table, limits and inertias, as data.
 
-A description is read from ``models/<name>/robot.toml``. It is what a researcher knows of the
+A description is read from ``models/<name>/robot.toml`` (written by hand, or by
+:mod:`vtestbed.robot_import` from a URDF; docs/robots.md). It is what a researcher knows of the
 robot, and the one source from which both the truth world (MuJoCo, :mod:`vtestbed.world.mjcf`)
 and the researcher's model (Pinocchio, :mod:`vtestbed.researcher.kinematics`) are built. It holds
 no stiffness: the world's truth (true stiffness, hidden effects) is a separate file,
@@ -48,17 +49,38 @@ class JointDescription:
     mass: float  # kg
     com: tuple[float, float, float]  # m, in the link's DH frame
     inertia_diag: tuple[float, float, float]  # kg*m^2, about the com, DH-frame axes
+    # products of inertia (Ixy, Ixz, Iyz) [kg*m^2], about the com in DH-frame axes; a link whose
+    # principal axes are not the DH axes (an imported URDF) needs them, the KR60's are zero
+    inertia_offdiag: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """(3, 3) inertia tensor about the com in the link's DH-frame axes [kg*m^2]."""
+        (ixx, iyy, izz), (ixy, ixz, iyz) = self.inertia_diag, self.inertia_offdiag
+        return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+
+
+IDENTITY4 = tuple(tuple(float(x) for x in row) for row in np.eye(4))
 
 
 @dataclass(frozen=True)
 class RobotDescription:
-    """A serial 6R robot as data (see ``models/<name>/README.md`` for the sources)."""
+    """A serial 6R robot as data (see ``models/<name>/README.md`` for the sources).
+
+    Any serial chain of revolute joints is a modified-DH table between two fixed transforms:
+    ``dh0_in_base``, DH frame 0 in the robot's base frame (the world frame of the rig), and
+    ``flange_in_dh``, the flange (where the sensor is mounted) in the last DH frame. Both are
+    stored as nested tuples (the description stays hashable) and are the identity for a robot
+    written as DH from its base to its flange (the KR60).
+    """
 
     name: str
     display_name: str
     base_mass: float
     joints: tuple[JointDescription, ...]
     source: Path
+    dh0_in_base: tuple[tuple[float, ...], ...] = IDENTITY4
+    flange_in_dh: tuple[tuple[float, ...], ...] = IDENTITY4
 
     @property
     def dof(self) -> int:
@@ -79,6 +101,16 @@ class RobotDescription:
         return np.array([j.upper for j in self.joints])
 
     @property
+    def base_transform(self) -> np.ndarray:
+        """(4, 4) pose of DH frame 0 in the robot's base frame."""
+        return np.array(self.dh0_in_base)
+
+    @property
+    def flange_transform(self) -> np.ndarray:
+        """(4, 4) pose of the flange in the last DH frame."""
+        return np.array(self.flange_in_dh)
+
+    @property
     def total_mass(self) -> float:
         return self.base_mass + sum(j.mass for j in self.joints)
 
@@ -87,15 +119,25 @@ class RobotDescription:
         j = self.joints[index]
         return modified_dh(j.alpha_prev, j.a_prev, theta, j.d)
 
+    def frame_poses(self, q) -> list[np.ndarray]:
+        """Poses (4, 4) in the base frame of DH frames 1..n at DH angles ``q`` [rad], then the flange."""
+        pose = self.base_transform
+        out = []
+        for i in range(self.dof):
+            pose = pose @ self.link_transform(i, float(q[i]))
+            out.append(pose)
+        out.append(pose @ self.flange_transform)
+        return out
+
     def controller_to_dh(self, angles_controller) -> np.ndarray:
-        """KUKA controller angles A1..A6 [rad] -> DH angles theta [rad]."""
+        """Controller angles (KUKA A1..A6; an imported URDF's joint positions) [rad] -> DH angles [rad]."""
         a = np.asarray(angles_controller, dtype=float)
         sign = np.array([j.controller_sign for j in self.joints])
         offset = np.array([j.controller_offset for j in self.joints])
         return sign * a + offset
 
     def dh_to_controller(self, theta) -> np.ndarray:
-        """DH angles theta [rad] -> controller angles A1..A6 [rad]."""
+        """DH angles theta [rad] -> controller angles [rad] (inverse of :meth:`controller_to_dh`)."""
         t = np.asarray(theta, dtype=float)
         sign = np.array([j.controller_sign for j in self.joints])
         offset = np.array([j.controller_offset for j in self.joints])
@@ -127,15 +169,10 @@ class RobotDescription:
         The translational rows are divided by :data:`JACOBIAN_LENGTH_SCALE_M` so that the ratio
         does not depend on the unit of length; 0 at a singularity.
         """
-        rot, pos = np.eye(3), np.zeros(3)
-        axes, origins = [], []
-        for i in range(self.dof):
-            frame = self.link_transform(i, float(q[i]))
-            pos = pos + rot @ frame[:3, 3]
-            rot = rot @ frame[:3, :3]
-            axes.append(rot[:, 2])
-            origins.append(pos)
-        point = pos + rot @ np.asarray(point_in_flange, dtype=float)
+        frames = self.frame_poses(q)
+        axes = [f[:3, 2] for f in frames[:-1]]
+        origins = [f[:3, 3] for f in frames[:-1]]
+        point = frames[-1][:3, :3] @ np.asarray(point_in_flange, dtype=float) + frames[-1][:3, 3]
         linear = np.stack([np.cross(z, point - o) for z, o in zip(axes, origins)], axis=1)
         jac = np.vstack([linear / JACOBIAN_LENGTH_SCALE_M, np.stack(axes, axis=1)])
         s = np.linalg.svd(jac, compute_uv=False)
@@ -186,6 +223,10 @@ def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription
     sign = float(table["controller_sign"])
     if sign not in (1.0, -1.0):
         raise DescriptionError(f"{source}: joints[{index}].controller_sign must be 1 or -1, got {sign}")
+    for field in ("com_m", "inertia_diag_kgm2", "inertia_offdiag_kgm2"):
+        value = table.get(field, (0.0, 0.0, 0.0))
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise DescriptionError(f"{source}: joints[{index}].{field} must be 3 numbers, got {value!r}")
     offset = np.radians(table["controller_offset_deg"])
     lim = np.radians(table["controller_limits_deg"])
     dh_lim = sorted(sign * lim + offset)
@@ -202,7 +243,30 @@ def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription
         mass=float(table["mass_kg"]),
         com=tuple(float(x) for x in table["com_m"]),
         inertia_diag=tuple(float(x) for x in table["inertia_diag_kgm2"]),
+        inertia_offdiag=tuple(float(x) for x in table.get("inertia_offdiag_kgm2", (0.0, 0.0, 0.0))),
     )
+
+
+def _rigid_transform(data: dict, field: str, source: Path) -> tuple[tuple[float, ...], ...]:
+    """The optional 4x4 rigid transform ``field`` of the file (identity when absent)."""
+    if field not in data:
+        return IDENTITY4
+    try:
+        matrix = np.array(data[field], dtype=float)
+    except (TypeError, ValueError):
+        matrix = np.zeros(0)
+    valid = "valid: 4 rows of 4 finite numbers, a rotation (R^T R = I, det +1) and last row [0, 0, 0, 1]"
+    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise DescriptionError(f"{source}: {field} = {data[field]!r} is not a 4x4 transform ({valid})")
+    rot = matrix[:3, :3]
+    # 1e-9: the file holds 17 significant digits, so an orthonormal matrix passes with room to spare
+    if (
+        np.abs(rot.T @ rot - np.eye(3)).max() > 1e-9
+        or np.linalg.det(rot) < 0
+        or np.abs(matrix[3] - [0, 0, 0, 1]).max() > 0
+    ):
+        raise DescriptionError(f"{source}: {field} is not a rigid transform ({valid})")
+    return tuple(tuple(float(x) for x in row) for row in matrix)
 
 
 DEFAULT_ROBOT = "kuka_kr60_3"
@@ -231,4 +295,6 @@ def load_robot(name: str = DEFAULT_ROBOT) -> RobotDescription:
         base_mass=float(data.get("base_mass_kg", 0.0)),
         joints=joints,
         source=source,
+        dh0_in_base=_rigid_transform(data, "dh0_in_base", source),
+        flange_in_dh=_rigid_transform(data, "flange_in_dh", source),
     )

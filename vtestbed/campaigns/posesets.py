@@ -26,7 +26,11 @@ more tests extend the list without changing its start.
 Truth-world check (:class:`FeasibilityChecker`): exactly what :func:`vtestbed.campaigns.montecarlo.prepare`
 does (command, hook, solve, place the scanner, cast, tighten, cast); a test that raises any
 :class:`~vtestbed.errors.VtestbedError` (scanner sees fewer than three faces, sensor overload,
-no convergence) is dropped deterministically.
+no convergence, or a test that is not physically possible: a link in the table, the wire through a
+link, the scanner's view blocked, docs/clearance.md) is dropped deterministically. Clearance is
+checked twice: on the nominal model before the truth world is asked (``candidate_tests``) and in
+the truth world at the loaded equilibrium; both refusals are counted in the plan's notes
+(``clearance_refused_nominal``, ``clearance_refused_truth``).
 """
 
 from __future__ import annotations
@@ -40,8 +44,9 @@ import numpy as np
 
 from ..design import kappa, regions
 from ..design import optimal as design
+from ..design.clearance import NominalClearance
 from ..design.priors import stiffness_prior
-from ..errors import VtestbedError
+from ..errors import ClearanceError, VtestbedError
 from ..lab import LabSetup
 from ..researcher.kinematics import ArmKinematics
 from ..scenario import LoadPlan, Scenario
@@ -110,6 +115,10 @@ class FeasibilityChecker:
         self.placement = scenario.scanner.placement
         self.cache: dict = {}
         self.tried = 0
+        # the same rules on the nominal model, for candidate_tests (its .refused counts them)
+        self.nominal = NominalClearance(scenario.robot, self.lab, self.distance,
+                                        self.placement.get("view_direction_block", (1.0, 1.0, 1.0)))  # fmt: skip
+        self.clearance_refused = 0  # tests the truth world refused for clearance
 
     def check(self, q, hook: str, anchor: str, tension: float) -> str | None:
         """None if the test can be run; else why not (the error's message)."""
@@ -117,11 +126,21 @@ class FeasibilityChecker:
         if key not in self.cache:
             self.tried += 1
             try:
-                run_test_physics(self.rig, q, hook, anchor, tension, self.distance, self.placement)
+                run_test_physics(self.rig, q, hook, anchor, tension, self.distance, self.placement,
+                                 clearance="raise")  # fmt: skip
                 self.cache[key] = None
+            except ClearanceError as exc:
+                self.clearance_refused += 1
+                self.cache[key] = f"{type(exc).__name__}: {exc}"
             except VtestbedError as exc:
                 self.cache[key] = f"{type(exc).__name__}: {exc}"
         return self.cache[key]
+
+    def clearance_notes(self, since: dict | None = None) -> dict:
+        """Counts of tests refused for clearance (nominal filter, truth world), since ``since``."""
+        now = {"clearance_refused_nominal": self.nominal.refused,
+               "clearance_refused_truth": self.clearance_refused}  # fmt: skip
+        return {k: v - (since or {}).get(k, 0) for k, v in now.items()}
 
 
 def lab_constraints(options) -> regions.PoseConstraints:
@@ -168,7 +187,7 @@ def hook_and_ring(
     for hook in hooks:
         for ring in order:
             if checks < max_checks and design.candidate_tests(
-                kin.robot, q[None], [hook], [ring], tension, lab
+                kin.robot, q[None], [hook], [ring], tension, lab, clearance=checker.nominal
             ):
                 checks += 1
                 if checker.check(q, hook, ring, tension) is None:
@@ -181,6 +200,7 @@ def nested_plan(
 ) -> TestPlan:
     """The first ``n`` poses of ``stream`` that get a feasible hook and ring."""
     q_out, hooks, rings, dropped = [], [], [], 0
+    before = checker.clearance_notes()
     for drawn, q in enumerate(stream):
         if limit is not None and drawn >= limit:
             break
@@ -198,14 +218,15 @@ def nested_plan(
             f"pose set {name!r}: only {len(q_out)} of {n} tests are feasible in the truth world "
             f"({dropped} poses dropped); raise campaign.pose_sets.pool or relax the constraints"
         )
-    return TestPlan(
-        name, np.array(q_out), tuple(hooks), tuple(rings), (tension,) * n, {"poses_dropped": dropped}
-    )
+    notes = {"poses_dropped": dropped} | checker.clearance_notes(before)
+    return TestPlan(name, np.array(q_out), tuple(hooks), tuple(rings), (tension,) * n, notes)
 
 
 def design_plan(robot, pool_q: np.ndarray, n: int, options, checker, stiffness_prior) -> TestPlan:
     """The ``options.criterion``-optimal ``n`` tests among the pool's feasible candidates."""
-    cands = list(design.candidate_tests(robot, pool_q, tension=options.tension_N, lab=checker.lab))
+    before = checker.clearance_notes()
+    cands = list(design.candidate_tests(robot, pool_q, tension=options.tension_N, lab=checker.lab,
+                                        clearance=checker.nominal))  # fmt: skip
     excluded: set[int] = set()
     while True:
         avail = [i for i in range(len(cands)) if i not in excluded]
@@ -225,6 +246,7 @@ def design_plan(robot, pool_q: np.ndarray, n: int, options, checker, stiffness_p
     tests = [cands[i] for i in chosen]
     notes = {"candidates": len(cands), "candidates_infeasible": len(excluded), "criterion": options.criterion,
              "criterion_value": {"D": sel.report.d_value, "A": sel.report.a_value, "E": sel.report.e_value}[options.criterion]}  # fmt: skip
+    notes |= checker.clearance_notes(before)
     return TestPlan("design_optimal", np.array([t.q for t in tests]), tuple(t.hook for t in tests),
                     tuple(t.anchor for t in tests), tuple(t.tension for t in tests), notes)  # fmt: skip
 
@@ -276,7 +298,8 @@ def plan_quality(robot, plan: TestPlan, n: int, lab: LabSetup, prior: np.ndarray
     """
     head = plan.head(n)
     inv_kappa = kappa.inv_kappa_batch(robot, head.q, "wrist")
-    a = [design.candidate_tests(robot, q[None], [h], [r], t, lab, check_sensor=False, outward=False)[0].a
+    a = [design.candidate_tests(robot, q[None], [h], [r], t, lab, check_sensor=False, outward=False,
+                                clearance=False)[0].a
          for q, h, r, t in zip(head.q, head.hooks, head.anchors, head.tensions)]  # fmt: skip
     try:
         d_value = design.evaluate(a, prior).d_value

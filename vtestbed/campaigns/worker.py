@@ -23,6 +23,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -36,7 +37,7 @@ from ..world.sensors import ForceTorqueSensor
 from . import montecarlo
 from .spec import Cell
 
-CACHE_SIZE = 2  # prepared test lists kept per worker process (about 90 MiB per 20 tests)
+CACHE_SIZE = 2  # prepared test lists kept per worker process (about 47 MiB per 20 tests)
 PARENT_POLL_S = 0.5  # how often the fallback watcher looks for the parent
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -112,7 +113,7 @@ def _prepared(batch: Batch) -> tuple[montecarlo.PreparedScenario, float]:
 def _release_free_memory() -> None:
     """Give the heap that preparing freed back to the system (glibc keeps it otherwise).
 
-    Preparing casts 10 MB of full-detail hits per test and keeps a 4 MB compact copy; glibc
+    Preparing casts 10 MB of full-detail hits per test and keeps a 2.2 MB compact copy; glibc
     keeps the freed rest in its heap, which showed as 40-60 MiB more resident memory per worker
     for the whole campaign. ``malloc_trim`` returns it (a few ms, once per test list).
     """
@@ -186,6 +187,10 @@ def init_local_worker(parent_pid: int) -> None:
     is gone.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # warnings (an unclear scenario test) as the command line shows them: one line, in words, once
+    from ..cli.args import show_warning
+
+    warnings.showwarning = show_warning
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import sys
 import tempfile
 from pathlib import Path
 
@@ -151,3 +152,23 @@ def add_load_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
     parser.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")
+
+
+shown: set[str] = set()  # warnings already printed in this command
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the command line: one line in words, no source path or code
+    line (those are for developers), each message once."""
+    text = str(message)
+    if text not in shown:
+        shown.add(text)
+        print(f"vtestbed: warning: {text}", file=sys.stderr if file is None else file)
+
+
+def print_notes(notes) -> None:
+    """A result's warnings that were not already shown when they were raised."""
+    for note in notes:
+        if note not in shown:
+            shown.add(note)
+            print(f"warning: {note}")

@@ -32,7 +32,7 @@ def _cmd_diagnose(args) -> int:
 
     print(markdown(report, load_robot(read_setup(args.dataset).robot).joint_names))
     if args.out:
-        print(f"wrote {Path(args.out) / 'report.json'}, report.md, gap.png, {html}")
+        print(f"wrote {Path(args.out) / 'report.json'}, report.md, gap.png, patterns.png, effect.png, {html}")
     return 0
 
 
@@ -41,7 +41,11 @@ def register(sub) -> None:
         "diagnose", help="detect, name and add the effects the paper's model misses (needs repeat scans)"
     )
     p.add_argument("dataset", type=Path)
-    p.add_argument("--out", type=output_dir, help="write report.json, report.md and gap.png here")
+    p.add_argument(
+        "--out",
+        type=output_dir,
+        help="write report.json, report.md, the figures, model.json and report.html here",
+    )
     p.add_argument(
         "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
     )

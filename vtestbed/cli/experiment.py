@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..files import dumps
-from .args import output_dir
+from .args import output_dir, print_notes
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -15,8 +15,7 @@ def _print_run(summary: dict, out: Path) -> None:
         f"\n{summary['scenario']}: {summary['n_tests']} tests, method {summary['method']}, seed {summary['seed']}"
     )
     print(summary["table"])
-    for note in summary["identification"]["warnings"]:
-        print(f"warning: {note}")
+    print_notes(summary["identification"]["warnings"])
     if summary["validation"]:
         errs = [max(v["rel_err_translation"], v["rel_err_rotation"]) for v in summary["validation"]]
         print(f"validation poses: worst relative displacement error {max(errs) * 100:.2f} %")
@@ -92,8 +91,7 @@ def _cmd_identify(args) -> int:
     print(f"condition number {result.condition_number:.3g}, reduced chi^2 {result.chi2_reduced:.3g}")
     if floor is not None:
         print(floor.summary())
-    for note in result.warnings:
-        print(f"warning: {note}")
+    print_notes(result.warnings)
     return 0
 
 

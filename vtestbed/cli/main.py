@@ -11,9 +11,10 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 from ..errors import VtestbedError
-from .args import join_negative_lists
+from .args import join_negative_lists, show_warning, shown
 
 # Each command and the module whose ``register(subparsers)`` function adds it
 # (tests/test_startup.py checks this table against what the modules register).
@@ -62,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = join_negative_lists(sys.argv[1:] if argv is None else list(argv))
     command = argv[0] if argv and not argv[0].startswith("-") else None
     args = build_parser(command).parse_args(argv)
+    previous, warnings.showwarning = warnings.showwarning, show_warning
+    shown.clear()
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
@@ -78,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("vtestbed: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = previous
 
 
 if __name__ == "__main__":

@@ -29,6 +29,33 @@ def _cmd_robot(args) -> int:
     return 0
 
 
+def _cmd_import(args) -> int:
+    from ..errors import DescriptionError
+    from ..robot_import import check_name, import_urdf, write_folder
+    from ..robots import MODELS_DIR
+    from ..urdf import read_urdf
+    from ..world.mjcf import write_model_files
+
+    name = check_name(args.name)
+    stiffness = None
+    if args.stiffness is not None:
+        try:
+            stiffness = [float(v) for v in args.stiffness.split(",")]
+        except ValueError:
+            raise DescriptionError(
+                f"--stiffness-Nm-per-rad {args.stiffness!r} must be 6 comma-separated numbers [N*m/rad]"
+            ) from None
+    imported = import_urdf(read_urdf(args.urdf), name, args.base, args.tip, stiffness, args.source or "")
+    directory = MODELS_DIR / name
+    written = write_folder(imported, directory, force=args.force)
+    load_robot.cache_clear()  # a re-import replaces a description this process may have read
+    written += write_model_files(load_robot(name), directory)
+    print(f"imported {', '.join(imported.chain)} as {name} (DH form exact to {imported.max_error:.1e})")
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
 def _cmd_load(args) -> int:
     from ..world.rig import Rig
 
@@ -77,9 +104,26 @@ def _cmd_models(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("robot", help="summary of a robot description")
+    p = sub.add_parser("robot", help="summary of a robot description; 'robot import' brings a URDF")
     p.add_argument("--robot", default=DEFAULT_ROBOT)
     p.set_defaults(func=_cmd_robot)
+    actions = p.add_subparsers(dest="robot_action")
+    imp = actions.add_parser(
+        "import", help="build models/NAME (description, truth, MJCF, README) from a URDF's 6R chain"
+    )
+    imp.add_argument("urdf", help="the URDF file")
+    imp.add_argument("--name", required=True, help="the robot's name, its folder models/NAME")
+    imp.add_argument("--base", help="the base link (default: the URDF's root link)")
+    imp.add_argument("--tip", help="the flange link (default: the child of the sixth revolute joint)")
+    imp.add_argument(
+        "--stiffness-Nm-per-rad",
+        dest="stiffness",
+        metavar="K1,...,K6",
+        help="true joint stiffness [N*m/rad] (default: rated torque / 2.5 mrad, docs/robots.md)",
+    )
+    imp.add_argument("--source", help="where the URDF came from, for the README")
+    imp.add_argument("--force", action="store_true", help="overwrite an existing models/NAME")
+    imp.set_defaults(func=_cmd_import)
 
     p = sub.add_parser("load", help="joint deflections and block displacement at a pose and a wire tension")
     p.add_argument("--robot", default=DEFAULT_ROBOT)

@@ -106,7 +106,7 @@ def reference_offset(point="wrist", block_in_flange: np.ndarray | None = None) -
 
 
 def dh_frames(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised modified-DH forward kinematics.
+    """Vectorised modified-DH forward kinematics, from the robot's base frame.
 
     Parameters
     ----------
@@ -116,13 +116,16 @@ def dh_frames(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.nd
     -------
     rot : (N, n, 3, 3) orientation of DH frames 1..n in the base frame
     pos : (N, n, 3) their origins [m]
+
+    Frame 0 is the description's ``dh0_in_base`` (identity for a robot written as DH from its base).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n_pose = q.shape[0]
     rot = np.empty((n_pose, robot.dof, 3, 3))
     pos = np.empty((n_pose, robot.dof, 3))
-    r_prev = np.broadcast_to(np.eye(3), (n_pose, 3, 3))
-    p_prev = np.zeros((n_pose, 3))
+    base = robot.base_transform
+    r_prev = np.broadcast_to(base[:3, :3], (n_pose, 3, 3))
+    p_prev = np.broadcast_to(base[:3, 3], (n_pose, 3))
     local = np.zeros((n_pose, 3, 3))
     for i, joint in enumerate(robot.joints):
         ca, sa = np.cos(joint.alpha_prev), np.sin(joint.alpha_prev)
@@ -145,6 +148,9 @@ def arm_wrist_blocks(robot: RobotDescription, q: np.ndarray, point="wrist"):
     offset = reference_offset(point)
     rot, pos = dh_frames(robot, q)
     z = rot[..., :, 2]  # (N, n, 3)
+    if offset is not None:  # the offset is in the flange frame: move it into the last DH frame
+        flange = robot.flange_transform
+        offset = flange[:3, :3] @ offset + flange[:3, 3]
     p = pos[:, 4] if offset is None else pos[:, 5] + rot[:, 5] @ offset
     j11 = np.stack([_cross(z[:, i], p - pos[:, i]) for i in range(3)], axis=-1)
     j22 = z[:, 3:6].transpose(0, 2, 1)

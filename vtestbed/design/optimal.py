@@ -31,6 +31,7 @@ from ..lab import DEFAULT_TENSION_N, PAPER_LAB, LabSetup
 from ..researcher.identify import a_matrix
 from ..researcher.kinematics import ArmKinematics
 from ..robots import RobotDescription
+from .clearance import NominalClearance
 
 # Block-displacement noise of the default scan pipeline (VTOP 200B noise model, 0.6 m, open3d fit),
 # measured against the truth over 30 seeds x 8 tests (tests/test_design_optimal.py): 5.3 um, 8.5 urad.
@@ -104,22 +105,29 @@ def candidate_tests(
     lab: LabSetup = PAPER_LAB,
     check_sensor: bool = True,
     outward: bool = True,
+    clearance: bool | NominalClearance = True,
 ) -> tuple[CandidateTest, ...]:
     """All feasible (pose, hook, ring) combinations at one wire tension [N].
 
     Dropped: a pose outside the limits raises; a wire that would cut into the block
-    (``outward``) or a wrench outside the sensor's range (``check_sensor``) is skipped.
+    (``outward``), a wrench outside the sensor's range (``check_sensor``) or a test that is not
+    physically possible on the nominal model (``clearance``: a link on the table or the floor, the
+    wire through a link, the sensor or the block's edges, the scanner's view blocked;
+    :class:`vtestbed.design.clearance.NominalClearance`, docs/clearance.md) is skipped. Pass a
+    ``NominalClearance`` to set the scanner's stand-off and to count the refusals (its ``refused``).
     """
     tension = lab.check_tension(tension, "tension")
     hooks = list(lab.block.hooks) if hooks is None else list(hooks)
     anchors = list(lab.table.anchors) if anchors is None else list(anchors)
     kin = ArmKinematics(robot, lab.block_in_flange)
     limit = np.asarray(lab.sensor.wrench_range)
+    nominal = NominalClearance(robot, lab) if clearance is True else clearance or None
     out = []
     for i, q in enumerate(np.atleast_2d(poses)):
         q = robot.check_pose(q, field=f"candidate pose {i}")
         jac = kin.jacobian(q, frame="base")
         for hook in hooks:
+            kept = []
             for anchor in anchors:
                 wrench, u, _, block = nominal_wrench(kin, lab, q, hook, anchor, tension)
                 normal = _outward_normal(lab.block.hook(hook), lab.block.edge)
@@ -127,7 +135,12 @@ def candidate_tests(
                     continue
                 if check_sensor and np.any(np.abs(sensor_load(kin, lab, q, wrench)) > limit):
                     continue
-                out.append(CandidateTest(q.copy(), hook, anchor, float(tension), jac, wrench))
+                kept.append((anchor, wrench))
+            if nominal is not None and kept:  # the costliest check last, on the survivors only
+                reports = nominal.check_many(q, hook, [a for a, _ in kept])
+                nominal.refused += sum(not r.ok for r in reports)
+                kept = [k for k, r in zip(kept, reports) if r.ok]
+            out += [CandidateTest(q.copy(), hook, a, float(tension), jac, w) for a, w in kept]
     return tuple(out)
 
 

@@ -123,3 +123,13 @@ def patterns(report: dict) -> str | None:
     if not any(v["rho"] is not None for v in report["detect"]["patterns"].values()):
         return None
     return drawn(lambda p: plot_patterns(report, p))
+
+
+def effect(report: dict) -> str | None:
+    """The baseline's residual against what the named terms explain (``effect.png``); None for a
+    report written before it existed or when nothing was named."""
+    from ..researcher.discrepancy import plot_effect
+
+    if not report.get("effect", {}).get("terms"):
+        return None
+    return drawn(lambda p: plot_effect(report, p))

@@ -84,9 +84,14 @@ def gap(folder: ResultFolder) -> Section:
     if val["before"]:
         rows.append(["validation prediction error / floor", Num(val["before"]["ratio_to_floor"], ".3f"),
                      Num(val["after"]["ratio_to_floor"], ".3f")])  # fmt: skip
-    return Section("gap", "The gap before and after", [
-        Table(["", "before", "after"], rows, id="gap-table"),
-        Figure(figures.gap(r), "Per-test RMS whitened residual before and after the named terms", "fig-gap")])  # fmt: skip
+    parts = [Table(["", "before", "after"], rows, id="gap-table"),
+             Figure(figures.gap(r), "Per-test RMS whitened residual before and after the named terms", "fig-gap")]  # fmt: skip
+    effect = figures.effect(r)
+    if effect is not None:
+        share = r["effect"]["explained_fraction"]
+        parts.append(Figure(effect, f"The named effect: the baseline's whitened residual against what the named "
+                                    f"terms explain ({share:.0%} of its chi^2)", "fig-effect"))  # fmt: skip
+    return Section("gap", "The gap before and after", parts)
 
 
 def scene(folder: ResultFolder) -> Section | None:

@@ -3,7 +3,7 @@
 Reads a dataset (with repeat scans for the noise floor, and validation tests if it has them),
 never the truth. Detects (chi^2 of the paper's model against the noise floor), names the missing
 effects (:func:`.diagnose.name_effects`), adds them, and compares the validation prediction error
-before and after. Writes ``report.json``, ``report.md``, ``gap.png`` and ``model.json`` (the named
+before and after. Writes ``report.json``, ``report.md``, ``gap.png``, ``patterns.png``, ``effect.png`` and ``model.json`` (the named
 terms, for ``vtestbed identify --model``) when given a folder.
 Units: SI; stiffness in N*m/rad.
 """
@@ -101,6 +101,7 @@ def diagnose(
         "model": final.to_dict(),
         "validation": {"before": validation_gap(ctx_val, white, base, []),
                        "after": validation_gap(ctx_val, white, final, chosen)},
+        "effect": _effect(white, base, final, [c.label for c in chosen]),
         "identification_fit": {"before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
                                "after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
                                "per_test_after": _per_test(white, final.residuals),
@@ -141,6 +142,16 @@ def residual_patterns(per_test: list, features: dict) -> dict:
         rho, p = spearmanr(values, per_test)
         out[name] = {"rho": float(rho), "p_value": float(p)}
     return out
+
+
+def _effect(white: Whitener, base, final, labels: list[str]) -> dict:
+    """What the named terms explain, per test and whitened component: the baseline's residual and
+    the part the named model removes from it (``base - final`` residuals). The fraction of the
+    baseline's chi^2 removed is ``1 - chi2_final / chi2_base``; with nothing named, 0."""
+    before = white(base.residuals.reshape(-1)).reshape(-1, 6)
+    after = white(final.residuals.reshape(-1)).reshape(-1, 6)
+    return {"terms": labels, "explained_fraction": float(1.0 - np.sum(after**2) / np.sum(before**2)),
+            "baseline_whitened": before.tolist(), "explained_whitened": (before - after).tolist()}  # fmt: skip
 
 
 def _per_test(white: Whitener, residuals: np.ndarray) -> list:
@@ -230,6 +241,30 @@ def plot_gap(report: dict, path: Path) -> Path:
     return save_figure(fig, path, dpi=90)
 
 
+def plot_effect(report: dict, path: Path) -> Path:
+    """The named effect: each test's whitened residual under the baseline against the part the
+    named terms explain. On the diagonal, the terms account for the gap; a cloud around zero of
+    unit spread is the noise left."""
+    plt = pyplot()
+    effect = report["effect"]
+    before, explained = np.asarray(effect["baseline_whitened"]), np.asarray(effect["explained_whitened"])
+    fig, ax = plt.subplots(figsize=(4.8, 4.4))
+    for k in range(before.shape[1]):
+        ax.scatter(explained[:, k], before[:, k], s=12, label=f"whitened component {k + 1}")
+    lim = max(1.0, float(np.abs(before).max()), float(np.abs(explained).max())) * 1.05
+    ax.plot([-lim, lim], [-lim, lim], "k-", lw=0.8, label="explained = residual")
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_xlabel("explained by the named terms (whitened)")
+    ax.set_ylabel("baseline residual (whitened)")
+    named = ", ".join(effect["terms"]) or "nothing"
+    ax.set_title(
+        f"named: {named}\nexplains {effect['explained_fraction']:.0%} of the baseline's chi^2", fontsize=9
+    )
+    ax.legend(fontsize=6)
+    return save_figure(fig, path, dpi=90)
+
+
 def plot_patterns(report: dict, path: Path) -> Path:
     """The per-test residual of the baseline (and with the named terms) against the pose features."""
     plt = pyplot()
@@ -260,6 +295,7 @@ def write_report(report: dict, out: Path, joint_names) -> None:
     write_text_atomic(out / "report.md", markdown(report, joint_names))
     plot_gap(report, out / "gap.png")
     plot_patterns(report, out / "patterns.png")
+    plot_effect(report, out / "effect.png")
 
 
 MODEL_FORMAT = "vtestbed-model/1"

@@ -20,16 +20,20 @@ def build_pinocchio_model(robot: RobotDescription) -> pin.Model:
     """A Pinocchio model with one ``JointModelRZ`` per DH joint and the robot's inertias.
 
     Joint placement i is Rx(alpha_{i-1}) Tx(a_{i-1}) Tz(d_i): Rz(theta_i) and Tz(d_i) commute,
-    so the modified-DH product is reproduced exactly.
+    so the modified-DH product is reproduced exactly. The first placement is preceded by the
+    description's ``dh0_in_base``; the ``flange`` frame sits at ``flange_in_dh`` in the last joint.
     """
     model = pin.Model()
     model.name = robot.name
     parent = 0
+    base = pin.SE3(robot.base_transform)
     for joint in robot.joints:
         placement = pin.SE3(
             rot_x(joint.alpha_prev),
             np.array([joint.a_prev, 0.0, 0.0]) + rot_x(joint.alpha_prev) @ [0, 0, joint.d],
         )
+        if parent == 0:
+            placement = base * placement
         jid = model.addJoint(
             parent,
             pin.JointModelRZ(),
@@ -40,10 +44,11 @@ def build_pinocchio_model(robot: RobotDescription) -> pin.Model:
             np.array([joint.lower]),
             np.array([joint.upper]),
         )
-        inertia = pin.Inertia(joint.mass, np.array(joint.com), np.diag(joint.inertia_diag))
+        inertia = pin.Inertia(joint.mass, np.array(joint.com), joint.inertia)
         model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
         parent = jid
-    model.addFrame(pin.Frame("flange", parent, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
+    flange = pin.SE3(robot.flange_transform)
+    model.addFrame(pin.Frame("flange", parent, flange, pin.FrameType.OP_FRAME))
     return model
 
 
@@ -63,6 +68,7 @@ class ArmKinematics:
         self.data = self.model.createData()
         self.tool_in_flange = np.eye(4) if tool_in_flange is None else np.asarray(tool_in_flange, dtype=float)
         self._last_joint = self.model.njoints - 1
+        self._flange = robot.flange_transform  # the flange in the last DH frame
 
     def _update(self, q) -> None:
         q = np.asarray(q, dtype=float)
@@ -70,9 +76,9 @@ class ArmKinematics:
         pin.computeJointJacobians(self.model, self.data, q)
 
     def flange_pose(self, q) -> np.ndarray:
-        """(4, 4) pose of the flange (DH frame 6) in the base frame at DH angles ``q`` [rad]."""
+        """(4, 4) pose of the flange (``flange_in_dh`` in DH frame 6) in the base frame at DH angles ``q`` [rad]."""
         self._update(q)
-        return self.data.oMi[self._last_joint].homogeneous.copy()
+        return self.data.oMi[self._last_joint].homogeneous @ self._flange
 
     def joint_poses(self, q) -> list[np.ndarray]:
         """Poses of DH frames 1..n in the base frame, each (4, 4)."""
@@ -101,6 +107,7 @@ class ArmKinematics:
 
             raise UnknownNameError("Jacobian frame", frame, ("base", "tool"))
         offset = self.tool_in_flange if tool_in_flange is None else np.asarray(tool_in_flange)
+        offset = self._flange @ offset  # the tool in the last DH frame, the joint Pinocchio knows
         self._update(q)
         j_flange_local = pin.getJointJacobian(
             self.model, self.data, self._last_joint, pin.ReferenceFrame.LOCAL

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, robot_dir
-from ..transforms import quat_wxyz, rot_x
+from ..transforms import quat_wxyz
 from .effects.structure import add_hinges
 from .truth import RobotTruth, load_truth
 
@@ -81,7 +81,11 @@ def _visual_geom(body, **kwargs):
 def _add_robot(
     spec: mujoco.MjSpec, robot: RobotDescription, truth: RobotTruth, hinges: tuple = ()
 ) -> mujoco.MjsBody:
-    """Add the robot chain to ``spec`` (``hinges``: effects' extra hinges); returns the last link."""
+    """Add the robot chain to ``spec`` (``hinges``: effects' extra hinges); returns the last link.
+
+    Body ``link<i>`` is DH frame i (link 1 placed at ``dh0_in_base`` times the first DH
+    transform); the ``flange`` site is at ``flange_in_dh`` in the last link.
+    """
     base = spec.worldbody.add_body(name="base")
     base_hinges = [h for h in hinges if h.body == 0]
     if base_hinges:  # a compliant foundation moves the base: it needs its mass (a 0.3 m x 0.3 m drum)
@@ -99,15 +103,19 @@ def _add_robot(
         rgba=[0.3, 0.3, 0.3, 1.0],
     )
     parent = base
+    flange = robot.flange_transform
     for i, joint in enumerate(robot.joints):
         placement = robot.link_transform(i, 0.0)
-        body = parent.add_body(
-            name=f"link{i + 1}", pos=placement[:3, 3], quat=quat_wxyz(rot_x(joint.alpha_prev))
-        )
+        if i == 0:  # DH frame 0 sits at dh0_in_base in the base body (identity for the KR60)
+            placement = robot.base_transform @ placement
+        body = parent.add_body(name=f"link{i + 1}", pos=placement[:3, 3], quat=quat_wxyz(placement[:3, :3]))
         body.explicitinertial = True
         body.mass = joint.mass
         body.ipos = list(joint.com)
-        body.inertia = list(joint.inertia_diag)
+        if any(joint.inertia_offdiag):  # MuJoCo finds the principal axes (body iquat) itself
+            body.fullinertia = [*joint.inertia_diag, *joint.inertia_offdiag]
+        else:  # written as before, so that a diagonal description's XML stays byte-identical
+            body.inertia = list(joint.inertia_diag)
         add_hinges(body, [h for h in hinges if h.body == i + 1])  # before the joint: they act on link i
         hinge = body.add_joint(name=joint.name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
         hinge.range = [joint.lower, joint.upper]
@@ -115,7 +123,7 @@ def _add_robot(
         hinge.damping[0] = truth.damping[i]
         hinge.armature = truth.armature[i]
         # Visual shell from this joint's origin to the next one (or a sphere at the wrist).
-        nxt = robot.link_transform(i + 1, 0.0)[:3, 3] if i + 1 < robot.dof else np.zeros(3)
+        nxt = robot.link_transform(i + 1, 0.0)[:3, 3] if i + 1 < robot.dof else flange[:3, 3]
         rgba = [1.0, 0.45, 0.0, 1.0] if i % 2 == 0 else [0.9, 0.9, 0.9, 1.0]
         if np.linalg.norm(nxt) > 1e-6:
             _visual_geom(
@@ -128,7 +136,13 @@ def _add_robot(
         else:
             _visual_geom(body, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[_LINK_RADII[i], 0, 0], rgba=rgba)
         parent = body
-    parent.add_site(name=FLANGE_SITE, size=[0.01, 0.0, 0.0], group=MARKER_GROUP)
+    parent.add_site(
+        name=FLANGE_SITE,
+        pos=flange[:3, 3],
+        quat=quat_wxyz(flange[:3, :3]),
+        size=[0.01, 0.0, 0.0],
+        group=MARKER_GROUP,
+    )
     return parent
 
 
@@ -139,9 +153,10 @@ def build_robot_spec(robot: RobotDescription, truth: RobotTruth) -> mujoco.MjSpe
     return spec
 
 
-def _add_tool(flange: mujoco.MjsBody, lab: LabSetup) -> None:
+def _add_tool(last_link: mujoco.MjsBody, flange: np.ndarray, lab: LabSetup) -> None:
+    """The sensor and the block on the last link, at the flange pose ``flange`` (4, 4) in it."""
     sensor, block = lab.sensor, lab.block
-    mount = flange.add_body(name="ft_mount")
+    mount = last_link.add_body(name="ft_mount", pos=flange[:3, 3], quat=quat_wxyz(flange[:3, :3]))
     half = sensor.height / 2
     mount_geom = _visual_geom(
         mount,
@@ -236,8 +251,8 @@ def build_scene_spec(
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # a statics rig: no contacts
     effects = tuple(e for e in effects if not e.is_null)
-    flange = _add_robot(spec, robot, truth, tuple(h for e in effects for h in e.hinges(robot)))
-    _add_tool(flange, lab)
+    last_link = _add_robot(spec, robot, truth, tuple(h for e in effects for h in e.hinges(robot)))
+    _add_tool(last_link, robot.flange_transform, lab)
     _add_table_and_wire(spec, lab)
     for kind, suffix in (
         (mujoco.mjtSensor.mjSENS_FORCE, "force"),

@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..clearance import ClearanceReport
 from ..transforms import displacement_in_block_frame
+from .clearance import describe_test, truth_clearance
 from .rig import Rig, RigState
 from .scan_noise import ScanGeometry, ScanNoise
 from .scanner import Scanner
@@ -45,6 +47,7 @@ class TestPhysics:
     scanner: Scanner
     hits_unloaded: ScanGeometry
     hits_loaded: ScanGeometry
+    clearance: ClearanceReport | None = None  # at the loaded equilibrium (vtestbed.world.clearance)
 
     @property
     def displacement_true(self) -> np.ndarray:
@@ -61,12 +64,18 @@ def run_test_physics(
     distance: float,
     placement: dict | None = None,
     timings=None,
+    clearance: str = "warn",
+    label: str | None = None,
 ) -> TestPhysics:
     """Command, hook, solve, place the scanner and cast; tighten and cast again (deterministic).
 
     ``distance`` [m] is the scanner stand-off, ``placement`` further :meth:`Scanner.place`
     arguments (e.g. ``point_spacing_m``). Raises the world's VtestbedError when the test cannot
-    be run (scanner view, sensor range, convergence).
+    be run (scanner view, sensor range, convergence). ``clearance`` is the policy for a test that
+    is not physically possible (a link in the table, the wire through a link, the scanner's view
+    blocked; :mod:`vtestbed.world.clearance`): "raise" (:class:`~vtestbed.errors.ClearanceError`),
+    "warn" (:class:`~vtestbed.clearance.ClearanceWarning`, the default: scenario files) or "off";
+    ``label`` names the test in the message (e.g. ``poses.angles_deg[3]``).
     """
     t0 = time.perf_counter()
     rig.command(q)
@@ -77,12 +86,16 @@ def run_test_physics(
     hits0 = scanner.cast(rig.model, rig.data)
     t2 = time.perf_counter()
     s1 = rig.tighten(tension)
+    report = None
+    if clearance != "off":  # before the second cast: a refused test costs no ray cast
+        report = truth_clearance(rig, s1, scanner.pose_world[:3, 3])
+        report.enforce(label or describe_test(q, hook, anchor), clearance)
     t3 = time.perf_counter()
     hits1 = scanner.cast(rig.model, rig.data)
     if timings is not None:
         timings.physics += (t1 - t0) + (t3 - t2)
         timings.scan += (t2 - t1) + (time.perf_counter() - t3)
-    return TestPhysics(s0, s1, scanner, hits0, hits1)
+    return TestPhysics(s0, s1, scanner, hits0, hits1, report)
 
 
 def draw_readings(

@@ -61,6 +61,8 @@ class GeometricError(WorldEffect):
     def edit_spec(self, spec, robot, lab) -> None:
         for i in range(robot.dof):
             placement = self.link_transform(robot, i, 0.0)  # the joint then turns about the body's z
+            if i == 0:  # an imported robot's DH frame 0 may sit off its base frame
+                placement = robot.base_transform @ placement
             body = spec.body(f"link{i + 1}")
             body.pos = placement[:3, 3]
             body.quat = quat_wxyz(placement[:3, :3])

@@ -1,0 +1,377 @@
+"""Clearance of a test at its pose: links against the table and the floor, the wire, the scanner's view.
+
+The geometry both sides share (numpy only, SI): simple convex shapes (capsules, cylinders, boxes),
+their distance to a segment, the scene's shapes as the truth world draws them, and the rules of
+:doc:`docs/clearance.md <clearance>` (which pairs, which margins). The truth world measures the
+same pairs with MuJoCo's own collision distance (:mod:`vtestbed.world.clearance`); the design tools
+measure them on the nominal kinematics (:mod:`vtestbed.design.clearance`).
+
+Distances are signed surface distances [m]: positive = a gap, negative = the shapes overlap by
+that much. A pair fails when its distance is below its margin.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ClearanceError, UnknownNameError
+from .lab import LabSetup
+
+LINK_MARGIN_M = 0.010  # links, sensor and block against the table top and the floor
+WIRE_MARGIN_M = 0.005  # the wire against the links, the sensor and the block's edges
+SIGHT_MARGIN_M = 0.005  # a sight line from the scanner to a scanned face against any obstacle
+# Radii [m] of the link shells the truth world draws (world/mjcf.py): link i is a capsule from DH
+# frame i's origin to frame i+1's, the last one a sphere at the flange. A test checks they agree.
+LINK_RADII = (0.16, 0.11, 0.10, 0.075, 0.065, 0.05)
+BASE_RADIUS_M, BASE_HEIGHT_M = 0.25, 0.30  # the base drum, standing on the floor
+STEM_RADIUS_M = 0.015
+TABLE_THICKNESS_M = 0.04
+FACE_INSET = 0.1  # sight points sit this fraction of an edge inside a face's corners
+SCANNED_FACES = ("+x", "+y", "+z")
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+class ClearanceWarning(UserWarning):
+    """A scenario's test that fails the clearance check (scenario files are warned, not refused)."""
+
+
+# ---------------------------------------------------------------------- shapes and distances
+@dataclass(frozen=True)
+class Capsule:
+    """A segment ``p0 -> p1`` [m] swept by a ball of ``radius`` [m] (a sphere when p0 = p1)."""
+
+    name: str
+    p0: np.ndarray
+    p1: np.ndarray
+    radius: float
+
+    def sdf(self, points: np.ndarray) -> np.ndarray:
+        return point_segment_distance(points, self.p0, self.p1) - self.radius
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A solid cylinder: ``center`` [m], unit ``axis``, ``radius`` and ``half_height`` [m]."""
+
+    name: str
+    center: np.ndarray
+    axis: np.ndarray
+    radius: float
+    half_height: float
+
+    def sdf(self, points: np.ndarray) -> np.ndarray:
+        rel = np.asarray(points, dtype=float) - self.center
+        h = rel @ self.axis
+        rho = np.linalg.norm(rel - h[..., None] * self.axis, axis=-1)
+        dx, dz = rho - self.radius, np.abs(h) - self.half_height
+        return np.minimum(np.maximum(dx, dz), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dz, 0.0))
+
+
+@dataclass(frozen=True)
+class Box:
+    """A solid box: ``center`` [m], ``rotation`` (3, 3) (columns = box axes), ``half`` sizes [m]."""
+
+    name: str
+    center: np.ndarray
+    rotation: np.ndarray
+    half: np.ndarray
+
+    def sdf(self, points: np.ndarray) -> np.ndarray:
+        q = np.abs((np.asarray(points, dtype=float) - self.center) @ self.rotation) - self.half
+        return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """The 12 edges as (12, 3) start and end points [m]."""
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        corners = self.center + (signs * self.half) @ self.rotation.T
+        pairs = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(signs[i] != signs[j]) == 1]
+        return corners[[i for i, _ in pairs]], corners[[j for _, j in pairs]]
+
+
+@dataclass(frozen=True)
+class Plane:
+    """The half-space below ``height`` [m] (the floor)."""
+
+    name: str
+    height: float = 0.0
+
+    def sdf(self, points: np.ndarray) -> np.ndarray:
+        return np.asarray(points, dtype=float)[..., 2] - self.height
+
+
+def point_segment_distance(points, p0, p1) -> np.ndarray:
+    """Distance [m] of points (..., 3) from the segment ``p0 -> p1`` (broadcast)."""
+    points, p0, p1 = (np.asarray(x, dtype=float) for x in (points, p0, p1))
+    d = p1 - p0
+    dd = np.sum(d * d, axis=-1)
+    t = np.clip(np.sum((points - p0) * d, axis=-1) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    return np.linalg.norm(points - p0 - t[..., None] * d, axis=-1)
+
+
+def segment_segment_distance(p0, p1, q0, q1) -> np.ndarray:
+    """Shortest distance [m] between segments ``p0 -> p1`` and ``q0 -> q1`` (broadcast over ``...``).
+
+    Closed form (Ericson, *Real-Time Collision Detection*, 5.1.9), degenerate segments included.
+    """
+    p0, p1, q0, q1 = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (p0, p1, q0, q1)))
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e = np.sum(d1 * d1, -1), np.sum(d2 * d2, -1)
+    b, c, f = np.sum(d1 * d2, -1), np.sum(d1 * r, -1), np.sum(d2 * r, -1)
+    eps = 1e-24
+    safe_a, safe_e = np.where(a > eps, a, 1.0), np.where(e > eps, e, 1.0)
+    denom = a * e - b * b
+    # parallel (or degenerate) segments: any s works, take 0
+    s = np.where(
+        denom > 1e-12 * np.maximum(a * e, eps), (b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0
+    )
+    s = np.clip(s, 0.0, 1.0)
+    t = (b * s + f) / safe_e
+    s = np.where(
+        t < 0.0, np.clip(-c / safe_a, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / safe_a, 0.0, 1.0), s)
+    )
+    t = np.clip(t, 0.0, 1.0)
+    # p degenerate: s = 0, t from f; q degenerate: t = 0, s from c
+    s = np.where(a <= eps, 0.0, np.where(e <= eps, np.clip(-c / safe_a, 0.0, 1.0), s))
+    t = np.where(a <= eps, np.clip(f / safe_e, 0.0, 1.0), np.where(e <= eps, 0.0, t))
+    return np.linalg.norm(p0 + s[..., None] * d1 - q0 - t[..., None] * d2, axis=-1)
+
+
+def capsule_distance(p0, p1, radius, shape, grid: int = 33, iterations: int = 24) -> np.ndarray:
+    """Signed surface distance [m] between capsules ``p0 -> p1`` (broadcast, (..., 3)) and ``shape``.
+
+    A capsule or a plane is closed form. For the others ``t -> shape.sdf(p0 + t (p1 - p0))`` is
+    convex (the signed distance of a convex set is convex): its minimum lies within one grid step
+    of the best of ``grid`` samples, and a golden-section search there narrows it to
+    ``2 / (grid - 1) * 0.618^iterations`` of the segment (1e-6 by default: a micrometre on a metre).
+    """
+    p0, p1 = np.broadcast_arrays(np.asarray(p0, dtype=float), np.asarray(p1, dtype=float))
+    if isinstance(shape, Capsule):
+        return segment_segment_distance(p0, p1, shape.p0, shape.p1) - shape.radius - radius
+    if isinstance(shape, Plane):  # linear along the segment: an end is nearest
+        return np.minimum(shape.sdf(p0), shape.sdf(p1)) - radius
+    d = p1 - p0
+    ts = np.linspace(0.0, 1.0, grid)
+    samples = shape.sdf(p0[..., None, :] + ts[:, None] * d[..., None, :])
+    best = np.argmin(samples, axis=-1)
+    lo, hi = ts[np.maximum(best - 1, 0)], ts[np.minimum(best + 1, grid - 1)]
+    x1, x2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+    f1, f2 = shape.sdf(p0 + x1[..., None] * d), shape.sdf(p0 + x2[..., None] * d)
+    for _ in range(iterations):
+        left = f1 <= f2  # the minimum is in [lo, x2]
+        hi, lo = np.where(left, x2, hi), np.where(left, lo, x1)
+        x2, x1 = np.where(left, x1, lo + _GOLDEN * (hi - lo)), np.where(left, hi - _GOLDEN * (hi - lo), x2)
+        fm = shape.sdf(p0 + np.where(left, x1, x2)[..., None] * d)
+        f2, f1 = np.where(left, f1, fm), np.where(left, fm, f2)
+    return np.minimum(np.minimum(f1, f2), samples.min(axis=-1)) - radius
+
+
+# ---------------------------------------------------------------------- the scene's shapes
+def arm_shapes(frame_origins) -> list[Capsule]:
+    """The link shells ``link1``..``link6`` from the DH frame origins (n, 3) [m] in the world."""
+    o = np.asarray(frame_origins, dtype=float)
+    ends = list(o[1:]) + [o[-1]]  # the last link is a sphere at its own origin
+    return [Capsule(f"link{i + 1}", o[i], ends[i], r) for i, r in enumerate(LINK_RADII[: len(o)])]
+
+
+def base_shape() -> Cylinder:
+    return Cylinder("base", np.array([0.0, 0.0, BASE_HEIGHT_M / 2]), np.array([0.0, 0.0, 1.0]),
+                    BASE_RADIUS_M, BASE_HEIGHT_M / 2)  # fmt: skip
+
+
+def tool_shapes(flange_pose, lab: LabSetup) -> list:
+    """Force sensor (mount and tool halves), stem and block at ``flange_pose`` (4, 4), as in world/mjcf.py."""
+    f = np.asarray(flange_pose, dtype=float)
+    rot, axis = f[:3, :3], f[:3, 2]
+    sensor, block = lab.sensor, lab.block
+    top = sensor.origin_in_flange[2]  # the sensor's tool face, on the flange axis
+
+    def along(z0: float, z1: float, radius: float, name: str) -> Cylinder:
+        return Cylinder(name, f[:3, 3] + axis * (z0 + z1) / 2, axis, radius, (z1 - z0) / 2)
+
+    mount_top = sensor.adapter_thickness + sensor.height / 2
+    block_origin = f @ lab.block_in_flange
+    return [
+        along(0.0, mount_top, sensor.diameter / 2, "ft_mount"),
+        along(top - sensor.height / 2, top, sensor.diameter / 2, "ft_sensor"),
+        along(top, top + block.standoff, STEM_RADIUS_M, "stem"),
+        Box(
+            "block", block_origin[:3, 3] + rot @ np.full(3, -block.edge / 2), rot, np.full(3, block.edge / 2)
+        ),
+    ]
+
+
+def table_shape(lab: LabSetup) -> Box:
+    t = lab.table
+    center = np.array([t.center[0], t.center[1], t.height - TABLE_THICKNESS_M / 2])
+    return Box(
+        "table_top", center, np.eye(3), np.array([t.size[0] / 2, t.size[1] / 2, TABLE_THICKNESS_M / 2])
+    )
+
+
+def scanner_position(block_pose, edge: float, distance_m: float, view_direction_block=(1.0, 1.0, 1.0)):
+    """The scanner's optical centre [m] as :meth:`vtestbed.world.scanner.Scanner.place` puts it."""
+    b = np.asarray(block_pose, dtype=float)
+    view = np.asarray(view_direction_block, dtype=float)
+    centre = b[:3, 3] + b[:3, :3] @ np.full(3, -edge / 2)
+    return centre + distance_m * (b[:3, :3] @ (view / np.linalg.norm(view)))
+
+
+def face_points(block_pose, edge: float) -> dict[str, np.ndarray]:
+    """Sight targets on the scanned faces (+x, +y, +z of B): the centre and four inset corners, (5, 3)."""
+    b = np.asarray(block_pose, dtype=float)
+    lo, hi, mid = -edge * (1 - FACE_INSET), -edge * FACE_INSET, -edge / 2
+    out = {}
+    for axis, label in enumerate(SCANNED_FACES):
+        others = [k for k in range(3) if k != axis]
+        pts = np.zeros((5, 3))
+        pts[:, others[0]] = (mid, lo, lo, hi, hi)
+        pts[:, others[1]] = (mid, lo, hi, lo, hi)
+        out[label] = b[:3, 3] + pts @ b[:3, :3].T
+    return out
+
+
+def hook_edges(block: Box, hook_point) -> np.ndarray:
+    """(12,) bool: the block's edges the wire may touch (the ones through the hook point)."""
+    a, b = block.edges()
+    return point_segment_distance(np.asarray(hook_point, dtype=float), a, b) < 1e-6
+
+
+# ---------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class Clearance:
+    """One checked pair: its signed surface distance and margin [m]."""
+
+    first: str
+    second: str
+    distance_m: float
+    margin_m: float
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.distance_m >= self.margin_m)
+
+    def describe(self) -> str:
+        return (f"{self.first} vs {self.second}: {self.distance_m * 1e3:.1f} mm "
+                f"(margin {self.margin_m * 1e3:g} mm)")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ClearanceReport:
+    """Every checked pair of one test; ``failures`` are the pairs below their margin, closest first."""
+
+    entries: tuple[Clearance, ...]
+
+    @property
+    def failures(self) -> tuple[Clearance, ...]:
+        return tuple(sorted((e for e in self.entries if not e.ok), key=lambda e: e.distance_m - e.margin_m))
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    def worst(self) -> Clearance:
+        """The pair with the least room over its margin."""
+        return min(self.entries, key=lambda e: e.distance_m - e.margin_m)
+
+    def message(self, label: str, limit: int = 4) -> str:
+        bad = self.failures
+        more = f"; and {len(bad) - limit} more" if len(bad) > limit else ""
+        return f"{label} is not physically possible: " + "; ".join(e.describe() for e in bad[:limit]) + more
+
+    def enforce(self, label: str, policy: str = "raise") -> None:
+        """``policy`` "raise" (:class:`ClearanceError`), "warn" (:class:`ClearanceWarning`) or "off"."""
+        if policy not in CLEARANCE_POLICIES:
+            raise UnknownNameError("clearance policy", str(policy), CLEARANCE_POLICIES)
+        if self.ok or policy == "off":
+            return
+        if policy == "raise":
+            raise ClearanceError(self.message(label))
+        warnings.warn(self.message(label), ClearanceWarning, stacklevel=3)
+
+
+CLEARANCE_POLICIES = ("raise", "warn", "off")
+
+
+def pose_clearances(links: list, tool: list, table: Box, floor: Plane) -> list[Clearance]:
+    """Links (capsules), sensor, stem and block against the table top and the floor."""
+    p0, p1 = np.array([c.p0 for c in links]), np.array([c.p1 for c in links])
+    radii = np.array([c.radius for c in links])
+    out = []
+    for ground in (table, floor):  # all links in one search
+        dist = capsule_distance(p0, p1, radii, ground)
+        out += [Clearance(c.name, ground.name, float(x), LINK_MARGIN_M) for c, x in zip(links, dist)]
+    return out + [Clearance(part.name, ground.name, _solid_distance(part, ground), LINK_MARGIN_M)
+                  for part in tool for ground in (table, floor)]  # fmt: skip
+
+
+def _solid_distance(solid, ground) -> float:
+    """Signed distance of a cylinder or box from the table top or the floor.
+
+    The solid's vertices (a cylinder's rims as 72-gons, within r (1 - cos 2.5 deg) = 0.04 mm of
+    the rim) in the ground's signed distance, and the ground's edges against the solid: together
+    they hold every feature pair that can carry the closest points of two convex solids.
+    """
+    if isinstance(solid, Box):
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        pts = solid.center + (signs * solid.half) @ solid.rotation.T
+    else:
+        ref = np.array([1.0, 0.0, 0.0]) if abs(solid.axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(solid.axis, ref)
+        u /= np.linalg.norm(u)
+        v = np.cross(solid.axis, u)
+        ang = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
+        ring = solid.radius * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+        pts = np.concatenate(
+            [solid.center + sign * solid.half_height * solid.axis + ring for sign in (-1, 1)]
+        )
+    dist = float(ground.sdf(pts).min())
+    if isinstance(ground, Box):
+        a, b = ground.edges()
+        dist = min(dist, float(capsule_distance(a, b, 0.0, solid).min()))
+    return dist
+
+
+def wire_clearances(hook_point, anchor, obstacles: list, block: Box, wire_radius: float) -> list[Clearance]:
+    """The wire (hook -> ring) against ``obstacles`` (links, base, sensor, stem) and the block.
+
+    The block's edges count except those through the hook (the wire leaves from there); edge
+    distances are from the wire's surface to the edge line. A wire that leaves the hook into the
+    block adds a ``block (cuts into it)`` pair with its depth.
+    """
+    return wire_clearances_many(hook_point, np.asarray(anchor, dtype=float)[None], obstacles, block,
+                                wire_radius)[0]  # fmt: skip
+
+
+def wire_clearances_many(hook_point, anchors, obstacles: list, block: Box, wire_radius: float):
+    """:func:`wire_clearances` for one hook and (k, 3) ring points at once: k lists of pairs."""
+    anchors = np.asarray(anchors, dtype=float)
+    hook = np.broadcast_to(np.asarray(hook_point, dtype=float), anchors.shape)
+    dist = {s.name: capsule_distance(hook, anchors, wire_radius, s) for s in obstacles}
+    a, b = block.edges()
+    free = ~hook_edges(block, hook[0])
+    edge = segment_segment_distance(hook[:, None], anchors[:, None], a[free], b[free]).min(axis=1)
+    # a wire leaving the hook into the block (a convex body: leaving outward, it never re-enters)
+    u = (anchors - hook) / np.linalg.norm(anchors - hook, axis=1, keepdims=True)
+    inside = capsule_distance(hook + 1e-4 * u, anchors, 0.0, block)
+    out = []
+    for k in range(len(anchors)):
+        entries = [Clearance("wire", name, float(x[k]), WIRE_MARGIN_M) for name, x in dist.items()]
+        entries.append(Clearance("wire", "block edges", float(edge[k] - wire_radius), WIRE_MARGIN_M))
+        if inside[k] < 0.0:
+            entries.append(Clearance("wire", "block (cuts into it)", float(inside[k]), 0.0))
+        out.append(entries)
+    return out
+
+
+def sight_clearances(scanner, targets: dict[str, np.ndarray], obstacles: list) -> list[Clearance]:
+    """Sight lines from the scanner's optical centre ``scanner`` (3,) to each face's points against
+    ``obstacles`` (one entry per face and obstacle: the closest of that face's sight lines)."""
+    faces = list(targets)
+    pts = np.stack([targets[f] for f in faces])  # (faces, points, 3): one search per obstacle
+    start = np.broadcast_to(np.asarray(scanner, dtype=float), pts.shape)
+    dist = {s.name: capsule_distance(start, pts, 0.0, s).min(axis=1) for s in obstacles}
+    return [Clearance(f"scanner sight to face {face}", name, float(d[k]), SIGHT_MARGIN_M)
+            for k, face in enumerate(faces) for name, d in dist.items()]  # fmt: skip

@@ -1,0 +1,106 @@
+"""Clearance of a test in the truth world, at its loaded equilibrium (rules: :mod:`vtestbed.clearance`).
+
+The scene runs without contacts (a statics rig), so nothing stops a link from sinking into the
+table or the wire from running through a link: this module measures it. Solid pairs (links,
+sensor, stem and block against the table top and the floor; the wire's stand-in capsule against
+the base, the links, the sensor and the stem) use MuJoCo's own collision distance
+(``mj_geomDistance``) on the scene's geoms; the wire against the block's edges and the scanner's
+sight lines use the shared segment geometry on shapes read from the same geoms, so they follow
+the true (sagged, possibly offset) poses.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from ..clearance import (
+    LINK_MARGIN_M,
+    WIRE_MARGIN_M,
+    Box,
+    Capsule,
+    Clearance,
+    ClearanceReport,
+    Cylinder,
+    face_points,
+    sight_clearances,
+    wire_clearances,
+)
+from . import mjcf
+from .rig import Rig, RigState
+
+_DISTMAX = 10.0  # m: mj_geomDistance reports at most this; every pair of the scene is closer
+
+
+def scene_geoms(model: mujoco.MjModel) -> dict[str, int]:
+    """Geom ids by clearance name: base, link1..link6, ft_mount, ft_sensor, stem, block, table_top,
+    floor, wire (the scene's link and tool geoms are unnamed; their bodies and sizes tell them apart)."""
+    out = {"table_top": model.geom("table_top").id, "floor": model.geom("floor").id,
+           "wire": model.geom("wire_geom").id, "block": model.geom("target_block").id}  # fmt: skip
+    tool = []
+    for g in range(model.ngeom):
+        if model.geom_group[g] != mjcf.SCANNABLE_GROUP or model.geom(g).name:
+            continue
+        body = model.body(model.geom_bodyid[g]).name
+        if body == mjcf.TOOL_BODY:
+            tool.append(g)
+        elif body in ("base", "ft_mount") or body.startswith("link"):
+            out[body] = g
+    tool.sort(key=lambda g: model.geom_size[g, 0])  # the thin stem, then the sensor's tool half
+    out.update(zip(("stem", "ft_sensor"), tool))
+    return out
+
+
+def geom_shape(model: mujoco.MjModel, data: mujoco.MjData, geom: int, name: str):
+    """The shared-geometry shape of a capsule, sphere, cylinder or box geom at its current pose."""
+    pos, rot, size = (
+        data.geom_xpos[geom].copy(),
+        data.geom_xmat[geom].reshape(3, 3).copy(),
+        model.geom_size[geom],
+    )
+    kind = model.geom_type[geom]
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return Capsule(name, pos - size[1] * rot[:, 2], pos + size[1] * rot[:, 2], float(size[0]))
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return Capsule(name, pos, pos, float(size[0]))
+    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        return Cylinder(name, pos, rot[:, 2], float(size[0]), float(size[1]))
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return Box(name, pos, rot, size[:3].copy())
+    raise ValueError(f"geom {name!r}: type {kind} has no clearance shape")  # the scene has none
+
+
+def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, g1: int, g2: int) -> float:
+    """MuJoCo's signed distance [m] between two geoms (negative: penetration depth)."""
+    return float(mujoco.mj_geomDistance(model, data, g1, g2, _DISTMAX, None))
+
+
+def truth_clearance(rig: Rig, state: RigState, scanner_position) -> ClearanceReport:
+    """Every clearance pair of the test in ``rig`` at ``state`` (the loaded equilibrium, wire placed).
+
+    ``scanner_position`` (3,) [m] is the scanner's optical centre (``Scanner.pose_world[:3, 3]``).
+    MuJoCo's data must hold ``state``'s kinematics, as it does right after :meth:`Rig.tighten`
+    (or a scan of that state).
+    """
+    m, d = rig.model, rig.data
+    ids = scene_geoms(m)
+    links = [f"link{i + 1}" for i in range(rig.robot.dof) if f"link{i + 1}" in ids]
+    tool = ["ft_mount", "ft_sensor", "stem"]
+    out = [Clearance(part, ground, geom_distance(m, d, ids[part], ids[ground]), LINK_MARGIN_M)
+           for part in links + tool + ["block"] for ground in ("table_top", "floor")]  # fmt: skip
+    out += [Clearance("wire", part, geom_distance(m, d, ids["wire"], ids[part]), WIRE_MARGIN_M)
+            for part in ["base"] + links + tool]  # fmt: skip
+    block = geom_shape(m, d, ids["block"], "block")
+    anchor = d.site(mjcf.WIRE_ANCHOR_SITE).xpos.copy()
+    wire_radius = rig.lab.wire.diameter / 2
+    # obstacles=[]: the solids are measured by MuJoCo above; the edges and the block here
+    out += wire_clearances(state.hook_position, anchor, [], block, wire_radius)
+    obstacles = [geom_shape(m, d, ids[n], n) for n in links + tool + ["wire"]]
+    targets = face_points(state.block_pose, rig.lab.block.edge)
+    out += sight_clearances(np.asarray(scanner_position, dtype=float), targets, obstacles)
+    return ClearanceReport(tuple(out))
+
+
+def describe_test(q, hook: str, anchor: str) -> str:
+    """A test's name when the caller gives none: its DH pose [deg], hook and ring."""
+    return f"test at q = {np.round(np.degrees(q), 2).tolist()} deg (DH), {hook} -> {anchor}"
