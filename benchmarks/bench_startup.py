@@ -12,7 +12,7 @@ The worker figure is a real worker's life: unpickle a task of the quick campaign
 (20 tests, as the paper campaign's largest test lists), import what that needs, prepare the
 physics of the 20 tests (equilibria, ray casts), run two trials of 20 tests. Targets: worker
 peak at most 250 MiB; ``vtestbed demo`` at most 4 s wall on a quiet machine (``--demo`` times it
-too: it writes runs/bench_demo).
+too, from scratch each time: it writes runs/bench_demo_<k>).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import argparse
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -118,9 +119,11 @@ def worker_figures(repeats: int) -> dict:
 def demo_wall(repeats: int) -> float:
     exe = Path(sys.executable).with_name("vtestbed")
     walls = []
-    for _ in range(repeats):
+    for k in range(repeats):
+        out = ROOT / "runs" / f"bench_demo_{k}"
+        shutil.rmtree(out, ignore_errors=True)  # a finished dataset would be resumed, not simulated
         t0 = time.perf_counter()
-        subprocess.run([str(exe), "demo", "--out", str(ROOT / "runs" / "bench_demo"), "--quiet"], check=True,
+        subprocess.run([str(exe), "demo", "--out", str(out), "--quiet"], check=True,
                        capture_output=True, env=_env())  # fmt: skip
         walls.append(time.perf_counter() - t0)
     return float(np.median(walls))

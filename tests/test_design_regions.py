@@ -1,6 +1,8 @@
 """Criterion maps, high-criterion regions, lab constraints and pose sampling, against the paper's
 regions, Pinocchio block positions and maps with known analytic peaks."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -168,3 +170,25 @@ def test_bad_constraints_and_steps_are_refused(robot, optimum):
         regions.OutOfRangeError, match=r"step_deg = 20 deg is outside the valid range \[0.01, 10\] deg"
     ):
         regions.joint_plane_map(robot, optimum.q, step_deg=20.0)
+
+
+def test_cli_runs_regions_and_design_on_the_offset_wrist_ur10(tmp_path, capsys):
+    from vtestbed.cli.main import main
+    from vtestbed.robots import load_robot
+
+    ur10 = load_robot("ur10")
+    base = ["--robot", "ur10", "--step-deg", "2", "--n", "8", "--min-height", "0.5"]
+    assert main(["poses", "regions", *base, "--out", str(tmp_path)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    q = np.radians(out["poses"]["q_deg"])
+    assert np.all((q >= ur10.lower) & (q <= ur10.upper))
+    np.testing.assert_allclose(out["poses"]["inv_kappa"], kappa.inv_kappa_batch(ur10, q), rtol=1e-12)
+    assert min(out["poses"]["inv_kappa"]) >= 0.7 and not out["wrist"]["spherical"]
+    d5 = ur10.joints[4].d  # the least-squares point lies halfway between axes 4 and 6 on axis 5
+    np.testing.assert_allclose(out["wrist"]["wrist_axis_distances_m_max"], [d5 / 2, 0, d5 / 2], atol=1e-12)
+    prior = ["--stiffness-prior", "1.32e8,1.32e8,6e7,2.16e7,2.16e7,2.16e7", "--tests", "6"]
+    poses = ["--robot", "ur10", "--poses", str(tmp_path / "poses.json")]
+    for clearance in ([], ["--no-clearance"]):  # link 1 stands on the base: not checked against the floor
+        assert main(["poses", "design", *poses, *prior, *clearance]) == 0
+        std = json.loads(capsys.readouterr().out)["selection"]["relative_std_percent"]
+        assert len(std) == 6 and all(np.isfinite(std)) and min(std) > 0

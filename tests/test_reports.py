@@ -346,3 +346,19 @@ def test_missing_apt_get_is_browser_unavailable(tmp_path, monkeypatch):
     with pytest.raises(browser.BrowserUnavailable, match="cannot be installed here"):
         browser.ensure_chromium(tmp_path / "chromium")
     assert "--disable-dev-shm-usage" in browser.FLAGS
+
+
+def test_a_run_page_embeds_the_figures_the_run_wrote(tmp_path):
+    """The PNG the run recorded in result.json is embedded byte for byte (no second drawing); a
+    result that records none (``--no-figures``) gets them drawn from its numbers."""
+    import base64
+
+    from vtestbed.reports import figures
+
+    png = b"\x89PNG\r\n\x1a\n" + bytes(range(256))
+    (tmp_path / "convergence.png").write_bytes(png)
+    result = {"figures": {"convergence": "/elsewhere/runs/demo/convergence.png"}}
+    uri = figures.recorded(result, tmp_path, "convergence")
+    assert base64.b64decode(uri.split(",", 1)[1]) == png
+    assert figures.recorded({"figures": {}}, tmp_path, "convergence") is None
+    assert figures.recorded(result, tmp_path, "validation") is None

@@ -48,7 +48,22 @@ def _broken(data, path, value):
         (("poses", "convention"), "kuka", r"poses.convention: 'kuka' is not one of dh, controller"),
         (("poses", "angles_deg"), [[0, 0, 0]], r"poses.angles_deg\[0\]: must be a list of 6 numbers"),
         (("poses", "angles_deg"), [[0, -150, 90, 0, 60, 0]], r"joint2 = -150.000 deg .*\[-135.0, 35.0\]"),
-        (("load", "tension_N"), 1500.0, r"load.tension_N\[0\]: = 1500 is outside the valid range \[1, 990\]"),
+        (
+            ("load", "tension_N"),
+            1500.0,
+            r"load.tension_N\[0\]: = 1500 N is outside the valid range \[1, 588.6\] N "
+            r"\(taut, and at most 588.6 N, set by the robot's rated payload \(60 kg \* 9.81 m/s\^2\)\)$",
+        ),
+        (
+            ("lab",),
+            {"max_tension_N": 150.0, "table": {}},
+            r"load.tension_N\[0\]: = 200 N .* \[1, 150\] N .* set by the lab's max_tension_N",
+        ),
+        (
+            ("lab",),
+            {"table": {"ring_x_m": [1.1, 2.4]}},
+            r"lab.table.ring_x_m\[1\]: = 2.4 is off the table top; valid range \[0.9, 2.3\]",
+        ),
         (("load", "anchor"), ["ring_10"], r"load.anchor\[0\]: 'ring_10' is not one of ring_1"),
         (("load", "hook"), [], r"load.hook: must not be empty"),
         (("scanner", "distance_m"), 2.0, r"scanner.distance_m: = 2 is outside the valid range \[0.1, 1.25\]"),
@@ -117,3 +132,32 @@ def test_jacobian_conditioning_matches_pinocchio():
         s = np.linalg.svd(jac, compute_uv=False)
         ours = robot.jacobian_conditioning(q, PAPER_LAB.block_in_flange[:3, 3])
         assert ours == pytest.approx(s[-1] / s[0], rel=1e-9, abs=1e-14)
+
+
+UR10_POSE = [[0.0, -60.0, -60.0, -60.0, 60.0, 30.0]]  # DH, deg: in the limits, away from singularities
+
+
+def test_a_ur10_scenario_gets_a_lab_scaled_to_its_reach():
+    from vtestbed.lab import lab_for_robot
+
+    scenario = parse_scenario({"name": "u", "robot": "ur10", "poses": {"angles_deg": UR10_POSE}})
+    scale = (0.612 + 0.5723 + np.hypot(0.1157, 0.0922)) / (0.85 + np.hypot(0.145, 0.82) + 0.17)
+    assert scenario.lab == lab_for_robot(scenario.robot)
+    assert scenario.scanner.distance == pytest.approx(0.6 * scale, abs=1e-8)  # the lab's stand-off
+    # default tension: half the UR10's 10 kg * 9.81 m/s^2, below the paper's 200 N
+    assert scenario.load.tensions == (pytest.approx(49.05, abs=1e-12),)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ({"load": {"tension_N": 200.0}}, r"load.tension_N\[0\]: = 200 N .* \[1, 98.1\] N .* rated payload \(10 kg"),
+        ({"lab": {"table": {"center_m": [1.6, 0.0], "ring_x_m": [1.1, 1.6, 2.1]}}},
+         r"u.toml: lab.table.ring_x_m\[1\], ring_y_m\[0\]: ring_4 .* beyond the wire's reach; valid: at most 1.450 m"),
+        ({"scanner": {"distance_m": 0.05}}, r"scanner.distance_m: = 0.05 is outside the valid range \[0.1, 1.25\]"),
+    ],
+)  # fmt: skip
+def test_a_ur10_scenario_outside_its_lab_names_the_field(extra, message):
+    data = {"name": "u", "robot": "ur10", "poses": {"angles_deg": UR10_POSE}, **extra}
+    with pytest.raises(ScenarioError, match=message):
+        parse_scenario(data, "u.toml")

@@ -10,6 +10,7 @@ from vtestbed.errors import (
     SensorOverloadError,
     UnknownNameError,
 )
+from vtestbed.lab import LabSetup
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.robots import available_robots, load_robot
 from vtestbed.transforms import displacement
@@ -149,15 +150,17 @@ def test_bad_inputs_get_clear_errors(rig):
         match=re.escape(f"unknown robot 'kuka_kr6'; valid names: {', '.join(available_robots())}"),
     ):
         load_robot("kuka_kr6")
-    for tension in (-5.0, 0.0, 0.5, 1000.0, float("nan")):  # the lab's one tension rule
-        with pytest.raises(OutOfRangeError, match=r"wire tension .* \[1, 990\] N"):
+    for tension in (-5.0, 0.0, 0.5, 600.0, float("nan")):  # the lab's one tension rule
+        with pytest.raises(OutOfRangeError, match=r"wire tension .* \[1, 588\.6\] N .*rated payload"):
             rig.tighten(tension)
-    rig.command(POSE)
-    rig.hook("hook_edge", "ring_9")
+    heavy = Rig(lab=LabSetup(rated_payload_kg=None))  # no payload limit: the sensor's range binds
+    heavy.command(POSE)
+    heavy.hook("hook_edge", "ring_9")
     with pytest.raises(
         SensorOverloadError, match=r"T[xyz] = .* outside the measuring range \[-30, 30\] N\*m"
     ):
-        rig.tighten(900.0)
+        heavy.tighten(900.0)
+    rig.command(POSE)
     rig.hook("hook_x", "ring_5")
     rig.slacken_wire()
     with pytest.raises(ConvergenceError, match="did not converge in 1 iterations"):

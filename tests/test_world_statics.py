@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from vtestbed.errors import ConvergenceError, OutOfRangeError, SensorOverloadError
+from vtestbed.lab import LabSetup
 from vtestbed.world import mjcf
 from vtestbed.world.effects import (
     BaseCompliance,
@@ -157,7 +158,7 @@ def test_a_failed_tighten_leaves_the_wire_slack_and_names_the_residual(robot):
 
 
 def _random_tests(rig: Rig, n: int, seed: int) -> dict:
-    """Run ``n`` sensor-feasible random tests (pose in the limits, hook, ring, 1-990 N)."""
+    """Run ``n`` sensor-feasible random tests (pose in the limits, hook, ring, 1 N up to the lab's limit)."""
     rng = np.random.default_rng(seed)
     hooks, rings = list(rig.lab.block.hooks), list(rig.lab.table.anchors)
     out = {"feasible": 0, "overloaded": 0, "worst_tension_error": 0.0, "worst_residual_ratio": 0.0}
@@ -165,7 +166,7 @@ def _random_tests(rig: Rig, n: int, seed: int) -> dict:
         rig.command(rng.uniform(rig.robot.lower, rig.robot.upper))
         rig.hook(hooks[rng.integers(len(hooks))], rings[rng.integers(len(rings))])
         rig.solve()
-        tension = rng.uniform(1.0, 990.0)
+        tension = rng.uniform(*rig.lab.tension_range_N)
         try:
             state = rig.tighten(tension)  # a ConvergenceError fails the test
         except SensorOverloadError:
@@ -180,7 +181,8 @@ def _random_tests(rig: Rig, n: int, seed: int) -> dict:
 
 
 def _check_random(robot, n):
-    out = _random_tests(Rig(robot), n, seed=2023)
+    # no payload limit: the sensor's 990 N range bounds the loads, the widest the solver meets
+    out = _random_tests(Rig(robot, LabSetup(rated_payload_kg=None)), n, seed=2023)
     print(f"\n{n} random KR60 tests: {out}")
     assert out["feasible"] == n and out["worst_residual_ratio"] <= 1.0
     assert out["worst_tension_error"] < 1e-8  # holding the tension: ~1e-10 N, not TENSION_TOL

@@ -293,6 +293,10 @@ class ClearanceReport:
 
 
 CLEARANCE_POLICIES = ("raise", "warn", "off")
+# Link 1 turns about the vertical axis of the base it stands on: it cannot move towards the floor,
+# and a robot whose first link starts at floor level (an imported UR10) would otherwise touch it
+# at every pose.
+FIXED_TO_FLOOR = {("link1", "floor")}
 
 
 def pose_clearances(links: list, tool: list, table: Box, floor: Plane) -> list[Clearance]:
@@ -302,7 +306,8 @@ def pose_clearances(links: list, tool: list, table: Box, floor: Plane) -> list[C
     out = []
     for ground in (table, floor):  # all links in one search
         dist = capsule_distance(p0, p1, radii, ground)
-        out += [Clearance(c.name, ground.name, float(x), LINK_MARGIN_M) for c, x in zip(links, dist)]
+        out += [Clearance(c.name, ground.name, float(x), LINK_MARGIN_M) for c, x in zip(links, dist)
+                if (c.name, ground.name) not in FIXED_TO_FLOOR]  # fmt: skip
     return out + [Clearance(part.name, ground.name, _solid_distance(part, ground), LINK_MARGIN_M)
                   for part in tool for ground in (table, floor)]  # fmt: skip
 

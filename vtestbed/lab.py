@@ -8,26 +8,40 @@ axes).
 
 Both sides read this module: the world builds its scene from a :class:`LabSetup`, the
 researcher knows the same layout as nominal data. It is also the one home of the lab's defaults
-and rules: the wire tension a test may use (:meth:`LabSetup.check_tension`), the measuring range
-of the force sensor (:meth:`ForceSensorSpec.check`) and the scanner's stand-off
-(:data:`DEFAULT_SCANNER_DISTANCE_M`, :attr:`ScannerSpec.working_distance_m`).
+and rules: the wire tension a test may use (:meth:`LabSetup.check_tension`, capped by the
+robot's rated payload, the wire's safe working load and the sensor), the measuring range of the
+force sensor (:meth:`ForceSensorSpec.check`), the scanner's stand-off
+(:attr:`LabSetup.scanner_distance`, :attr:`ScannerSpec.working_distance_m`) and a lab that fits
+the robot (:func:`lab_for_robot`, checked by :func:`check_lab`; docs/lab.md).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 
 from .errors import OutOfRangeError, SensorOverloadError, UnknownNameError
+from .schema import Fields
 from .transforms import homogeneous
 
 WRENCH_AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 WRENCH_UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
 DEFAULT_TENSION_N = 200.0  # the paper's wire load
 MIN_TENSION_N = 1.0  # below this a steel wire is not reliably taut
-DEFAULT_SCANNER_DISTANCE_M = 0.6  # scanner optical centre to block centre
+DEFAULT_SCANNER_DISTANCE_M = 0.6  # scanner optical centre to block centre, the paper's robot
+G_N_PER_KG = 9.81  # a rated payload [kg] as the force [N] it may put on the flange
+PAPER_RATED_PAYLOAD_KG = 60.0  # the KR60-3's (models/kuka_kr60_3/robot.toml; a test keeps them equal)
+# Until the URDF importer writes rated_payload_kg: the maker's rated payload of imported robots.
+RATED_PAYLOAD_FALLBACK_KG = {"ur10": 10.0}
+FLOOR_HEIGHT_M = 0.0  # the floor plane of the scene; nothing of the lab goes below it
+# The KR60's joint 2 axis point at q = 0 (DH frame 2's origin) and reach (the largest flange distance
+# from that axis, stretched: a2 + |(a3, d4)| + d6): every other robot's lab is scaled from them.
+PAPER_SHOULDER_M = (0.35, 0.0, 0.815)
+PAPER_REACH_M = 0.85 + math.hypot(0.145, 0.82) + 0.17
 
 
 @dataclass(frozen=True)
@@ -130,6 +144,15 @@ class WireSpec:
     axial_rigidity: float = 6.28e5  # N, E*A of a 2 mm steel wire (200 GPa)
     diameter: float = 0.002  # m, for the scanner's view only
     damping: float = 200.0  # N*s/m, only for dynamic settling
+    # A solid 2 mm wire of rope-wire grade 1770 N/mm^2 breaks at 1770 MPa * pi (1 mm)^2 = 5561 N;
+    # a lifting safety factor of 5 leaves a safe working load of 1112 N.
+    breaking_load_N: float = 1.77e9 * math.pi * 0.001**2
+    safety_factor: float = 5.0
+
+    @property
+    def safe_working_load_N(self) -> float:
+        """Largest tension [N] the wire may carry: breaking load over the safety factor."""
+        return self.breaking_load_N / self.safety_factor
 
 
 @dataclass(frozen=True)
@@ -146,29 +169,69 @@ class ScannerSpec:
 
 
 @dataclass(frozen=True)
+class BlockZone:
+    """Where generated tests may put the block: above ``min_height`` [m] and inside ``box``
+    ``(x_min, y_min, z_min, x_max, y_max, z_max)`` [m], robot base frame (the campaigns' pose sets)."""
+
+    min_height: float = 0.8
+    box: tuple[float, ...] = (0.3, -1.0, 0.0, 2.3, 1.0, 2.2)
+
+
+@dataclass(frozen=True)
 class LabSetup:
-    """Everything bolted around the robot."""
+    """Everything bolted around the robot.
+
+    ``rated_payload_kg``: the robot's (None: not known); ``tension_cap_N``: a stricter tension limit
+    the lab sets itself (None: none); ``scanner_distance`` [m]: the scanner's default stand-off.
+    """
 
     sensor: ForceSensorSpec = field(default_factory=ForceSensorSpec)
     block: BlockSpec = field(default_factory=BlockSpec)
     table: TableSpec = field(default_factory=TableSpec)
     wire: WireSpec = field(default_factory=WireSpec)
     scanner: ScannerSpec = field(default_factory=ScannerSpec)
+    zone: BlockZone = field(default_factory=BlockZone)
+    scanner_distance: float = DEFAULT_SCANNER_DISTANCE_M
+    rated_payload_kg: float | None = PAPER_RATED_PAYLOAD_KG
+    tension_cap_N: float | None = None
+
+    @property
+    def tension_limits_N(self) -> dict[str, float]:
+        """What caps the wire tension [N], keyed by what sets it (the robot only when known)."""
+        kg, g = self.rated_payload_kg, G_N_PER_KG
+        robot = {} if kg is None else {f"the robot's rated payload ({kg:g} kg * {g:g} m/s^2)": kg * g}
+        return {**robot, "the wire's safe working load": self.wire.safe_working_load_N,
+                f"the {self.sensor.name}'s force range": self.sensor.max_force}  # fmt: skip
+
+    @property
+    def max_tension(self) -> tuple[float, str]:
+        """The lab's largest wire tension [N] and what sets it: the lowest of
+        :attr:`tension_limits_N`, or the lab's own ``tension_cap_N`` when given."""
+        if self.tension_cap_N is not None:
+            return self.tension_cap_N, "the lab's max_tension_N"
+        source = min(self.tension_limits_N, key=self.tension_limits_N.get)
+        return self.tension_limits_N[source], source
 
     @property
     def tension_range_N(self) -> tuple[float, float]:
-        """Wire tensions [N] a test may use: taut, and measurable by the force sensor."""
-        return MIN_TENSION_N, self.sensor.max_force
+        """Wire tensions [N] a test may use: taut, and at most :attr:`max_tension`."""
+        return MIN_TENSION_N, self.max_tension[0]
+
+    @property
+    def default_tension_N(self) -> float:
+        """The paper's 200 N, or half the lab's limit when lower (a design's doubled load fits)."""
+        return min(DEFAULT_TENSION_N, self.max_tension[0] / 2)
 
     def check_tension(self, tension, field_name: str = "tension_N") -> float:
-        """Return ``tension`` [N] or raise :class:`OutOfRangeError` naming the field and range."""
-        low, high = self.tension_range_N
+        """Return ``tension`` [N] or raise :class:`OutOfRangeError` naming the field, the range
+        and which limit sets its top."""
+        low, (high, source) = MIN_TENSION_N, self.max_tension
         if isinstance(tension, bool) or not isinstance(tension, int | float | np.floating | np.integer):
             raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] N, got {tension!r}")
         if not low <= tension <= high:  # also refuses NaN
             raise OutOfRangeError(
                 f"{field_name} = {tension:g} N is outside the valid range [{low:g}, {high:g}] N (taut, and "
-                f"at most the {self.sensor.name}'s {high:g} N on any axis)"
+                f"at most {high:g} N, set by {source})"
             )
         return float(tension)
 
@@ -185,8 +248,7 @@ class LabSetup:
         return homogeneous(np.eye(3), self.sensor.origin_in_flange)
 
 
-PAPER_LAB = LabSetup()  # the paper's lab: the one default when no scenario gives a lab
-
+PAPER_LAB = LabSetup()  # the paper's lab, the KR60-3's (lab_for_robot gives it for the KR60)
 
 # What a scenario's [lab] table may override: table -> key -> (dataclass field, length or None, low, high).
 # Lengths: None for a number, an int for a fixed-length list, 0 for a list of any length >= 1.
@@ -194,7 +256,7 @@ LAB_FIELDS = {
     "table": {
         "center_m": ("center", 2, -10.0, 10.0),
         "size_m": ("size", 2, 0.1, 10.0),
-        "height_m": ("height", None, 0.0, 3.0),
+        "height_m": ("height", None, FLOOR_HEIGHT_M, 3.0),
         "ring_x_m": ("ring_x", 0, -10.0, 10.0),
         "ring_y_m": ("ring_y", 0, -10.0, 10.0),
     },
@@ -204,20 +266,22 @@ LAB_FIELDS = {
         "standoff_m": ("standoff", None, 0.0, 0.5),
     },
     "force_sensor": {"range_N_Nm": ("wrench_range", 6, 1e-3, 1e6)},
-    "wire": {"axial_rigidity_N": ("axial_rigidity", None, 1e3, 1e9)},
-}
-_LAB_PARTS = {"table": "table", "block": "block", "force_sensor": "sensor", "wire": "wire"}
+    "wire": {"axial_rigidity_N": ("axial_rigidity", None, 1e3, 1e9), "breaking_load_N": ("breaking_load_N", None, 10.0, 1e6)},
+    "zone": {"min_height_m": ("min_height", None, FLOOR_HEIGHT_M, 3.0), "box_m": ("box", 6, -10.0, 10.0)},
+}  # fmt: skip
+_LAB_PARTS = {"table": "table", "block": "block", "force_sensor": "sensor", "wire": "wire", "zone": "zone"}
 
 
-def parse_lab(table, fields) -> LabSetup:
-    """The lab of a scenario: the paper's :class:`LabSetup` with the ``[lab]`` table's overrides.
+def parse_lab(table, fields, robot=None) -> LabSetup:
+    """The lab of a scenario: the robot's lab (:func:`lab_for_robot`; the paper's without a
+    robot) with the ``[lab]`` table's overrides, checked against the robot (:func:`check_lab`).
 
     ``fields`` is a :class:`vtestbed.schema.Fields` bound to the scenario file; every key and
-    range is in :data:`LAB_FIELDS`, and errors name the field (``lab.table.height_m``).
+    range is in :data:`LAB_FIELDS` (and ``max_tension_N``, at most the lowest of the robot's,
+    the wire's and the sensor's limits); errors name the field (``lab.table.height_m``).
     """
-
-    fields.table(table, "lab", tuple(LAB_FIELDS))
-    lab = PAPER_LAB
+    fields.table(table, "lab", (*LAB_FIELDS, "max_tension_N"))
+    lab = PAPER_LAB if robot is None else lab_for_robot(robot)
     for part, keys in LAB_FIELDS.items():
         given = fields.table(table.get(part, {}), f"lab.{part}", tuple(keys))
         changes = {}
@@ -235,4 +299,102 @@ def parse_lab(table, fields) -> LabSetup:
         if changes:
             attr = _LAB_PARTS[part]
             lab = dataclasses.replace(lab, **{attr: dataclasses.replace(getattr(lab, attr), **changes)})
+    if "max_tension_N" in table:  # only stricter: the robot, wire and sensor limits still hold
+        cap = fields.number(table["max_tension_N"], "lab.max_tension_N", MIN_TENSION_N, lab.max_tension[0])
+        lab = dataclasses.replace(lab, tension_cap_N=cap)
+    return lab if robot is None else check_lab(lab, robot, fields)
+
+
+@cache
+def robot_reach(robot) -> float:
+    """The largest distance [m] of the flange from joint 2's axis over joints 3..n in their limits
+    (joints 1 and 2 only turn the arm about that axis); a bounded search from fixed starts."""
+
+    def minus_distance(q):
+        pose = np.eye(4)
+        for i, angle in enumerate(q, start=2):
+            pose = pose @ robot.link_transform(i, angle)
+        return -math.hypot(*(pose @ robot.flange_transform)[:2, 3])
+
+    from scipy.optimize import minimize  # here: the CLI and campaigns start without scipy
+
+    low, high = robot.lower[2:], robot.upper[2:]
+    starts = np.random.default_rng(0).uniform(low, high, (8, len(low)))
+    return -min(minimize(minus_distance, x, bounds=list(zip(low, high))).fun for x in starts)
+
+
+def shoulder_distance(robot, points) -> np.ndarray:
+    """Distance [m] of ``points`` (..., 3) from the circle that joint 2's axis point (DH frame 2's
+    origin) sweeps about joint 1's axis: the reach check's centre."""
+    frames = robot.frame_poses(np.zeros(robot.dof))
+    origin, axis = frames[0][:3, 3], frames[0][:3, 2]
+
+    def split(p):  # axial and radial coordinates about joint 1's axis
+        v = np.asarray(p, dtype=float) - origin
+        return v @ axis, np.linalg.norm(v - (v @ axis)[..., None] * axis, axis=-1)
+
+    (a_s, r_s), (a_p, r_p) = split(frames[1][:3, 3]), split(points)
+    return np.hypot(r_p - r_s, a_p - a_s)
+
+
+@cache
+def lab_for_robot(robot) -> LabSetup:
+    """The paper's lab scaled to ``robot``: table, rings, block zone and scanner stand-off.
+
+    Positions scale by ``robot_reach / PAPER_REACH_M`` about joint 2's axis point and move with
+    it; heights stop at the floor, the stand-off at the scanner's working distance. Scale and
+    shift are rounded to 1e-9 so that the KR60 gets :data:`PAPER_LAB` exactly. The rated payload
+    is the description's ``rated_payload_kg``, else :data:`RATED_PAYLOAD_FALLBACK_KG`'s.
+    """
+    scale = round(robot_reach(robot) / PAPER_REACH_M, 9)
+    shoulder = robot.frame_poses(np.zeros(robot.dof))[1][:3, 3]
+    shift = [round(float(a) - b, 9) for a, b in zip(shoulder, PAPER_SHOULDER_M)]
+
+    def at(value, axis, floor=False):  # exactly ``value`` for scale 1 and shift 0
+        moved = value + shift[axis] + (scale - 1.0) * (value - PAPER_SHOULDER_M[axis])
+        return max(FLOOR_HEIGHT_M, moved) if floor else moved
+
+    t, z, (low, high) = PAPER_LAB.table, PAPER_LAB.zone, PAPER_LAB.scanner.working_distance_m
+    table = TableSpec((at(t.center[0], 0), at(t.center[1], 1)), (t.size[0] * scale, t.size[1] * scale),
+                      at(t.height, 2, True), tuple(at(x, 0) for x in t.ring_x), tuple(at(y, 1) for y in t.ring_y))  # fmt: skip
+    zone = BlockZone(at(z.min_height, 2, True), tuple(at(v, i % 3, i % 3 == 2) for i, v in enumerate(z.box)))
+    kg = robot.rated_payload_kg or RATED_PAYLOAD_FALLBACK_KG.get(robot.name)
+    return dataclasses.replace(PAPER_LAB, table=table, zone=zone, rated_payload_kg=kg,
+                               scanner_distance=min(high, max(low, DEFAULT_SCANNER_DISTANCE_M * scale)))  # fmt: skip
+
+
+def check_lab(lab: LabSetup, robot, fields: Fields | None = None) -> LabSetup:
+    """Return ``lab`` if ``robot`` can use it, else raise a ScenarioError naming the ``[lab]`` field.
+
+    The flange must reach a point above the table top with the block hanging below it; every ring
+    must lie on the table top and within the wire's reach (the robot's reach plus the farthest
+    hook's distance from the flange, so that a held block can come over it); the block zone's box
+    must not be empty. The table's height range keeps every ring above the floor.
+    """
+    f, reach, t, name = fields or Fields(), robot_reach(robot), lab.table, robot.display_name
+    lo, hi = np.subtract(t.center, np.divide(t.size, 2)), np.add(t.center, np.divide(t.size, 2))
+    grid = np.meshgrid(np.linspace(lo[0], hi[0], 61), np.linspace(lo[1], hi[1], 61))
+    hang = lab.block_in_flange[2, 3]  # the block hanging straight down from the flange
+    nearest = shoulder_distance(robot, np.stack([*grid, np.full_like(grid[0], t.height + hang)], -1)).min()
+    if nearest > reach:
+        raise f.error("lab.table", f"out of reach: with the block hanging above the table top the flange is at "
+                      f"least {nearest:.3f} m from the shoulder (joint 2's axis); valid: at most the {name}'s reach "
+                      f"{reach:.3f} m (move center_m, size_m or height_m)")  # fmt: skip
+    for key, values, axis in (("ring_x_m", t.ring_x, 0), ("ring_y_m", t.ring_y, 1)):
+        for i, v in enumerate(values):
+            if not lo[axis] <= v <= hi[axis]:
+                raise f.error(f"lab.table.{key}[{i}]", f"= {v:g} is off the table top; valid range "
+                              f"[{lo[axis]:g}, {hi[axis]:g}] (center_m +- size_m / 2)")  # fmt: skip
+    hook = max(np.linalg.norm((lab.block_in_flange @ [*h, 1.0])[:3]) for h in lab.block.hooks.values())
+    for k, (ring, point) in enumerate(t.anchors.items()):
+        if (d := shoulder_distance(robot, point)) > reach + hook:
+            i, j = divmod(k, len(t.ring_y))
+            raise f.error(f"lab.table.ring_x_m[{i}], ring_y_m[{j}]", f"{ring} at {np.round(point, 3).tolist()} m "
+                          f"is {d:.3f} m from the shoulder (joint 2's axis), beyond the wire's reach; valid: at most "
+                          f"{reach + hook:.3f} m (the {name}'s reach {reach:.3f} m plus the farthest hook's "
+                          f"{hook:.3f} m from the flange)")  # fmt: skip
+    for i, axis in enumerate("xyz"):
+        if not lab.zone.box[i] < lab.zone.box[i + 3]:
+            raise f.error("lab.zone.box_m", f"{axis}_min = {lab.zone.box[i]:g} must be below {axis}_max = "
+                          f"{lab.zone.box[i + 3]:g}")  # fmt: skip
     return lab

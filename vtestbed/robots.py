@@ -81,6 +81,7 @@ class RobotDescription:
     source: Path
     dh0_in_base: tuple[tuple[float, ...], ...] = IDENTITY4
     flange_in_dh: tuple[tuple[float, ...], ...] = IDENTITY4
+    rated_payload_kg: float | None = None  # the maker's rated payload; None: not in the file
 
     @property
     def dof(self) -> int:
@@ -269,6 +270,16 @@ def _rigid_transform(data: dict, field: str, source: Path) -> tuple[tuple[float,
     return tuple(tuple(float(x) for x in row) for row in matrix)
 
 
+def _rated_payload(data: dict, source: Path) -> float | None:
+    """The optional ``rated_payload_kg`` (> 0, finite; it caps the wire tension, vtestbed.lab)."""
+    value = data.get("rated_payload_kg")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < float("inf"):
+        raise DescriptionError(f"{source}: rated_payload_kg = {value!r} must be a number in (0, inf) kg")
+    return float(value)
+
+
 DEFAULT_ROBOT = "kuka_kr60_3"
 
 
@@ -297,4 +308,5 @@ def load_robot(name: str = DEFAULT_ROBOT) -> RobotDescription:
         source=source,
         dh0_in_base=_rigid_transform(data, "dh0_in_base", source),
         flange_in_dh=_rigid_transform(data, "flange_in_dh", source),
+        rated_payload_kg=_rated_payload(data, source),
     )

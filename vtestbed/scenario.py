@@ -1,7 +1,8 @@
 """Scenario files (TOML): what to simulate, validated with errors that name the field.
 
 A scenario says which robot, which test poses (DH or KUKA controller angles, in degrees), which
-wire hook, ring and tension per test, the lab around the robot (``[lab]``, defaults: the paper's),
+wire hook, ring and tension per test, the lab around the robot (``[lab]``; defaults: the paper's
+lab scaled to the robot, :func:`vtestbed.lab.lab_for_robot`),
 where the scanner stands and how noisy it is, how noisy the force sensor is, which estimator to
 use and the seed. A parsed :class:`Scenario` owns its robot description, its lab and its noise
 models, each built once. See ``scenarios/*.toml`` and the README's field table.
@@ -20,7 +21,7 @@ import numpy as np
 
 from .errors import OutOfRangeError, ScenarioError, VtestbedError
 from .files import read_toml
-from .lab import DEFAULT_SCANNER_DISTANCE_M, DEFAULT_TENSION_N, LabSetup, parse_lab
+from .lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, parse_lab
 from .robots import DEFAULT_ROBOT, RobotDescription, load_robot
 from .schema import Fields
 from .world.effects import parse_effects
@@ -157,14 +158,20 @@ def _per_test(value, count: int, f: Fields, name: str, check) -> tuple:
 
 def _load_plan(table, count: int, lab: LabSetup, f: Fields, prefix: str) -> LoadPlan:
     f.table(table, prefix.rstrip("."), ("hook", "anchor", "tension_N"))
-    low, high = lab.tension_range_N
+
+    def tension(value, name):  # the lab's one rule, whose message names the limit that binds
+        try:
+            return lab.check_tension(value, name)
+        except OutOfRangeError as exc:
+            raise f.error(name, str(exc).removeprefix(name).lstrip()) from None
+
     return LoadPlan(
         hooks=_per_test(table.get("hook", DEFAULT_HOOK), count, f, f"{prefix}hook",
                         lambda v, n: f.choice(v, n, sorted(lab.block.hooks))),
         anchors=_per_test(table.get("anchor", DEFAULT_ANCHOR), count, f, f"{prefix}anchor",
                           lambda v, n: f.choice(v, n, sorted(lab.table.anchors))),
-        tensions=_per_test(table.get("tension_N", DEFAULT_TENSION_N), count, f, f"{prefix}tension_N",
-                           lambda v, n: f.number(v, n, low, high)),
+        tensions=_per_test(table.get("tension_N", lab.default_tension_N), count, f, f"{prefix}tension_N",
+                           tension),
     )  # fmt: skip
 
 
@@ -182,7 +189,7 @@ def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
         raise f.error("scanner.noise_params", str(exc)) from None
     spacing = table.get("spacing_m")
     return ScannerPlan(
-        distance=f.number(table.get("distance_m", DEFAULT_SCANNER_DISTANCE_M), "scanner.distance_m",
+        distance=f.number(table.get("distance_m", lab.scanner_distance), "scanner.distance_m",
                           *lab.scanner.working_distance_m),
         noise=noise,
         noise_params=dict(params),
@@ -214,7 +221,7 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         robot = load_robot(f.string(robot_name, "robot", allow_empty=False))
     except VtestbedError as exc:
         raise f.error("robot", str(exc)) from None
-    lab = parse_lab(data.get("lab", {}), f)
+    lab = parse_lab(data.get("lab", {}), f, robot)
     seed = f.seed(data.get("seed", 0), "seed")
     poses = _poses(data["poses"], robot, f, "poses.", lab)
     load = _load_plan(data.get("load", {}), len(poses), lab, f, "load.")

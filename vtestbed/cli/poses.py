@@ -11,11 +11,12 @@ import numpy as np
 
 from ..design import influence, kappa, regions
 from ..design import optimal as design
+from ..design.clearance import NominalClearance
 from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
 from ..design.priors import NAMED_PRIORS, stiffness_prior
-from ..errors import OutOfRangeError, ScenarioError, UnknownNameError, check_range
+from ..errors import OutOfRangeError, ScenarioError, UnknownNameError, VtestbedError, check_range
 from ..files import dumps, read_json
-from ..lab import DEFAULT_TENSION_N
+from ..lab import DEFAULT_TENSION_N, PAPER_LAB
 from ..robots import DEFAULT_ROBOT, load_robot
 from .args import NEGATIVE_HINT, SEED, integer, number, output_dir, parse_angles_deg, parse_numbers
 
@@ -104,7 +105,9 @@ def _cmd_optimize(args) -> int:
     robot = load_robot(args.robot)
     opt = _optimum(robot, args)
     data = opt.to_dict() | {"q_controller_deg": np.degrees(robot.dh_to_controller(opt.q)).tolist()}
-    data["paper"] = _paper_comparison(robot, _point(args.point))
+    data["wrist"] = regions.wrist_report(robot, opt.q, _point(args.point))
+    if robot.name == DEFAULT_ROBOT:  # the paper's pose is a KR60-3 pose; elsewhere it means nothing
+        data["paper"] = _paper_comparison(robot, _point(args.point))
     _emit(args, data, "optimum.json")
     return 0
 
@@ -123,10 +126,9 @@ def _cmd_maps(args) -> int:
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        marks = [
-            (label, q, "w*"),
-            ("paper's optimum (as controller angles)", kappa.paper_optimum(robot), "ro"),
-        ]
+        marks = [(label, q, "w*")]
+        if robot.name == DEFAULT_ROBOT:
+            marks.append(("paper's optimum (as controller angles)", kappa.paper_optimum(robot), "ro"))
         plot_joint_plane(pmap, found, out / "joint_plane.png", marks)
         plot_cartesian(cmap, out / "cartesian.png")
         data["files"] = [str(out / "joint_plane.png"), str(out / "cartesian.png")]
@@ -167,7 +169,7 @@ def _cmd_regions(args) -> int:
     robot = load_robot(args.robot)
     pmap, found, sample = _regions_and_poses(robot, args)
     data = {"constraints": vars(_constraints(args)), "regions": [r.to_dict(pmap) for r in found],
-            "poses": sample.to_dict()}  # fmt: skip
+            "poses": sample.to_dict(), "wrist": regions.wrist_report(robot, sample.q, pmap.point)}  # fmt: skip
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         marks = [(f"{len(sample.q)} sampled poses", sample.q, "w.")]
@@ -196,13 +198,22 @@ def _cmd_design(args) -> int:
         q = _regions_and_poses(robot, args)[2].q
     hooks = args.hooks.split(",") if args.hooks else None
     anchors = args.anchors.split(",") if args.anchors else None
-    cands = design.candidate_tests(robot, q, hooks, anchors, tension=args.tension)
+    nominal = False if args.no_clearance else NominalClearance(robot, PAPER_LAB)
+    cands = design.candidate_tests(robot, q, hooks, anchors, tension=args.tension, clearance=nominal)
+    if not cands:  # say why rather than fail later on an empty design
+        refused = "off" if args.no_clearance else f"{nominal.refused} (pose, hook, ring) refused"
+        raise VtestbedError(
+            f"no feasible test among {len(q)} poses x hooks x rings on robot {robot.name!r} "
+            f"(clearance check: {refused}; the rest: wire into the block or F/T range); "
+            "try other poses, --hooks/--anchors, or --no-clearance (docs/clearance.md)"
+        )
     prior = _prior(args.stiffness_prior, robot.dof)
     sel = design.select_tests(cands, args.tests, prior, criterion=args.criterion, method=args.method,
                               sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
     data = {"candidates": len(cands), "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
             "stiffness_prior": args.stiffness_prior, "stiffness_prior_Nmm_per_rad": (prior * 1e3).tolist(),
-            "selection": sel.to_dict(),
+            "selection": sel.to_dict(), "clearance_check": not args.no_clearance,
+            "wrist": regions.wrist_report(robot, q, _point(args.point)),
             "tests": [cands[i].to_dict() for i in sel.indices]}  # fmt: skip
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -315,6 +326,8 @@ def register(sub) -> None:
         "--tests", type=integer(1, 10000), default=10, help="tests to choose (default %(default)s)"
     )
     p.add_argument("--criterion", choices=design.CRITERIA, default="D")
+    p.add_argument("--no-clearance", action="store_true",
+                   help="skip the clearance check (docs/clearance.md; its link shells are the KR60's)")  # fmt: skip
     p.add_argument("--method", choices=design.METHODS, default="exchange")
     p.add_argument(
         "--sigma-p",

@@ -21,7 +21,7 @@ from ..robots import RobotDescription
 from .kappa import (
     PAPER_RANKING,
     PAPER_TABLE2_PER_DEG2,
-    check_spherical_wrist,
+    check_wrist,
     finite_difference,
     inv_kappa_batch,
     optimize,
@@ -170,7 +170,7 @@ def joint_influence(
     method : ``"fd"`` ranks by finite differences, ``"fourier"`` by the Fourier fit (both are
         always reported when ``method == "fourier"``)
     """
-    check_spherical_wrist(robot)
+    check_wrist(robot)
     if method not in METHODS:
         raise UnknownNameError("influence method", method, METHODS)
     q = robot.check_pose(q, field="influence pose")

@@ -1,30 +1,20 @@
 """Pose selection away from singularities: the arm-wrist criterion kappa(J_AW)^-1 (paper Sec. 3).
 
-Definition (the paper's Eq. 18-19 are garbled in its text; this is the one vtestbed uses)
------------------------------------------------------------------------------------------
-Take the geometric Jacobian ``J = [J_P; J_O]`` (6, 6) of a reference point ``p`` in base axes
-(default: the wrist centre W, the origin of DH frame 5, where axes 4, 5 and 6 meet) and split it
-into 3x3 blocks ``J = [[J11, J12], [J21, J22]]``::
+The paper's Eq. 18-19 are garbled in its text; vtestbed uses (docs/poses.md): the geometric
+Jacobian ``J = [J_P; J_O]`` of a reference point ``p`` in base axes, split into 3x3 blocks::
 
     J11 = [z_1 x (p - p_1), z_2 x (p - p_2), z_3 x (p - p_3)]   [m]
     J22 = [z_4, z_5, z_6]                                        [1]
-
-With the Frobenius condition number ``kappa_F(M) = ||M||_F ||M^-1||_F / 3`` (``>= 1``, equal
-to 1 exactly for a multiple of an orthogonal matrix), the criterion is::
-
-    inv_kappa = 1 / (kappa_F(J11) kappa_F(J22))
+    inv_kappa = 1 / (kappa_F(J11) kappa_F(J22)),  kappa_F(M) = ||M||_F ||M^-1||_F / 3
               = 9 |det J11| |det J22| / (||J11||_F ||adj J11||_F ||J22||_F ||adj J22||_F)
 
-computed in the second form (``M^-1 = adj M / det M``), so it is exactly 0 at a singular pose
-without inverting anything, and lies in [0, 1]. It is free of the length unit: ``J11`` scales
-with the unit as a whole and ``kappa_F`` ignores a scale factor (``J22`` has no unit).
-
-At W, ``J12 = 0`` and ``det J = det J11 det J22``: ``det J22 = 0`` is the wrist singularity
-(``theta_5 = 0``), ``det J11 = 0`` the elbow (W on the line of the joint 2-3 link) and the
-shoulder singularity (W on axis 1). ``1/kappa_F(J22) = sqrt(3 s^2 / (s^2 + 2))`` with
-``s = sin(theta_5)``, so the wrist factor peaks at ``theta_5 = +-90 deg``; at W neither joint 1,
-4 nor 6 changes the criterion. Other reference points (``"flange"``, ``"block"`` or an offset in
-the flange frame) keep the same block formula but then ``J12 != 0`` and joint 4 matters.
+evaluated in the second form: exactly 0 at a singular pose, in [0, 1], free of the length unit.
+The default point is the wrist point (:func:`wrist_point`): for a spherical wrist the origin of
+DH frame 5 (axes 4-6 meet), where ``J12 = 0`` and ``det J = det J11 det J22`` (wrist, elbow and
+shoulder singularities separate exactly; joints 1, 4, 6 cannot change the criterion); for an
+offset wrist (UR type) the least-squares point of axes 4-6, where ``J12 != 0`` and the split is
+an approximation whose size :func:`coupling_ratio` reports. Other points (``"flange"``,
+``"block"`` or an offset in the flange frame) keep the same block formula.
 
 All angles are DH angles in rad; lengths in m.
 """
@@ -50,37 +40,63 @@ PAPER_RANKING = (5, 2, 3, 4)
 
 
 class NotSphericalWristError(VtestbedError, ValueError):
-    """A robot the arm-wrist split does not apply to (not 6R, or axes 4-6 do not meet)."""
+    """A robot the criterion is undefined for (not 6R, two wrist axes always parallel); historical name."""
 
 
-def check_spherical_wrist(robot: RobotDescription, tol: float = 1e-12) -> None:
-    """Raise :class:`NotSphericalWristError` unless ``robot`` is 6R with a spherical wrist.
+def check_wrist(robot: RobotDescription, tol: float = 1e-12) -> bool:
+    """Whether ``robot``'s wrist is spherical; raise where the criterion is undefined.
 
-    Axes 4, 5, 6 meet in one point iff ``a_4 = a_5 = 0`` (``a_prev`` of joints 5 and 6) and
-    ``d_5 = 0``; they must also not be parallel (``sin(alpha_4)``, ``sin(alpha_5)`` != 0).
+    Axes 4, 5, 6 meet iff ``a_4 = a_5 = d_5 = 0``; other 6R wrists are accepted. Refused with
+    :class:`NotSphericalWristError`: not 6R, or ``sin(alpha_4)``/``sin(alpha_5)`` = 0 (two wrist
+    axes parallel at every pose: ``det J22 = 0`` everywhere, nothing to maximise).
     """
     if robot.dof != 6:
         raise NotSphericalWristError(
             f"robot {robot.name!r}: the arm-wrist criterion needs 6 revolute joints, got {robot.dof}"
         )
     j = robot.joints
-    checks = (
-        (f"{j[4].name}.a_prev (a_4)", j[4].a_prev, "m"),
-        (f"{j[5].name}.a_prev (a_5)", j[5].a_prev, "m"),
-        (f"{j[4].name}.d (d_5)", j[4].d, "m"),
-    )
-    for field, value, unit in checks:
-        if abs(value) > tol:
-            raise NotSphericalWristError(
-                f"robot {robot.name!r}: {field} = {value:g} {unit} must be 0 for a spherical wrist "
-                "(axes 4, 5 and 6 meeting in one point); the J11/J22 split does not apply"
-            )
     for k in (4, 5):
         if abs(np.sin(j[k].alpha_prev)) < 1e-9:
             raise NotSphericalWristError(
                 f"robot {robot.name!r}: {j[k].name}.alpha_prev = {np.degrees(j[k].alpha_prev):g} deg "
-                "makes two wrist axes parallel; it must not be 0 or 180 deg"
+                "makes two wrist axes parallel at every pose (the criterion would be 0 everywhere); "
+                "it must not be 0 or 180 deg"
             )
+    return max(abs(j[4].a_prev), abs(j[5].a_prev), abs(j[4].d)) <= tol
+
+
+def least_squares_wrist_point(z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The point nearest to three lines in the least-squares sense, and its distance to each.
+
+    Parameters
+    ----------
+    z : (N, 3, 3) unit directions of the lines, ``z[:, i]`` for line i
+    p : (N, 3, 3) a point on each line [m]
+
+    Returns
+    -------
+    x : (N, 3) the minimiser of ``sum_i |P_i (x - p_i)|^2``, ``P_i = I - z_i z_i^T`` [m], from
+        ``(sum_i P_i) x = sum_i P_i p_i`` (singular only for three parallel lines)
+    dist : (N, 3) ``|P_i (x - p_i)|``, the distance of ``x`` from each line [m]
+    """
+    proj = np.eye(3) - z[..., :, None] * z[..., None, :]  # (N, 3 lines, 3, 3)
+    x = np.linalg.solve(proj.sum(1), (proj @ p[..., None]).sum(1))[..., 0]
+    dist = np.linalg.norm((proj @ (x[:, None, :] - p)[..., None])[..., 0], axis=-1)
+    return x, dist
+
+
+def wrist_point(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The criterion's wrist point (N, 3) [m] and its distances (N, 3) [m] from axes 4, 5, 6.
+
+    For a spherical wrist this is the origin of DH frame 5 (distances exactly 0), bit for bit as
+    before; otherwise the least-squares point of the three wrist axes, whose distances measure
+    how far the wrist is from spherical (UR10: d_5/2, 0, d_5/2 at every pose).
+    """
+    spherical = check_wrist(robot)
+    rot, pos = dh_frames(robot, q)
+    if spherical:
+        return pos[:, 4], np.zeros((pos.shape[0], 3))
+    return least_squares_wrist_point(rot[:, 3:6, :, 2], pos[:, 3:6])
 
 
 def reference_offset(point="wrist", block_in_flange: np.ndarray | None = None) -> np.ndarray | None:
@@ -143,18 +159,40 @@ def dh_frames(robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.nd
 def arm_wrist_blocks(robot: RobotDescription, q: np.ndarray, point="wrist"):
     """The blocks J11 (N, 3, 3) [m] and J22 (N, 3, 3) and the point (N, 3) [m], base axes.
 
-    ``point`` as in :func:`reference_offset`; the wrist centre is the origin of DH frame 5.
+    ``point`` as in :func:`reference_offset`; ``"wrist"`` is :func:`wrist_point` (the origin of
+    DH frame 5 for a spherical wrist, the least-squares point of axes 4-6 otherwise).
     """
+    j11, j22, p, _ = _blocks(robot, q, point)
+    return j11, j22, p
+
+
+def _blocks(robot: RobotDescription, q: np.ndarray, point, with_j12: bool = False):
+    """:func:`arm_wrist_blocks` plus, if asked, the block J12 (N, 3, 3) [m] (else ``None``)."""
     offset = reference_offset(point)
+    spherical = check_wrist(robot)
     rot, pos = dh_frames(robot, q)
     z = rot[..., :, 2]  # (N, n, 3)
     if offset is not None:  # the offset is in the flange frame: move it into the last DH frame
         flange = robot.flange_transform
-        offset = flange[:3, :3] @ offset + flange[:3, 3]
-    p = pos[:, 4] if offset is None else pos[:, 5] + rot[:, 5] @ offset
+        p = pos[:, 5] + rot[:, 5] @ (flange[:3, :3] @ offset + flange[:3, 3])
+    elif spherical:
+        p = pos[:, 4]
+    else:
+        p = least_squares_wrist_point(z[:, 3:6], pos[:, 3:6])[0]
     j11 = np.stack([_cross(z[:, i], p - pos[:, i]) for i in range(3)], axis=-1)
+    j12 = np.stack([_cross(z[:, i], p - pos[:, i]) for i in range(3, 6)], axis=-1) if with_j12 else None
     j22 = z[:, 3:6].transpose(0, 2, 1)
-    return j11, j22, p
+    return j11, j22, p, j12
+
+
+def coupling_ratio(robot: RobotDescription, q: np.ndarray, point="wrist") -> np.ndarray:
+    """``||J12||_F / ||J11||_F`` (N,) at poses ``q`` (N, 6): what the arm-wrist split neglects.
+
+    0 at a spherical wrist's centre; at the UR10's least-squares wrist point ``||J12||_F`` is
+    ``d_5 / sqrt(2)`` at every pose (two wrist columns of length ``d_5 / 2``).
+    """
+    j11, _, _, j12 = _blocks(robot, np.atleast_2d(q), point, with_j12=True)
+    return np.linalg.norm(j12, axis=(1, 2)) / np.linalg.norm(j11, axis=(1, 2))
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -201,6 +239,8 @@ class CriterionValue:
     det_j11: float  # m^3
     det_j22: float
     position: np.ndarray  # (3,) reference point in the base frame [m]
+    wrist_axis_distances: np.ndarray  # (3,) non-sphericity: the wrist point's distance from axes 4-6 [m]
+    coupling: float  # ||J12||_F / ||J11||_F at the point (0: the arm-wrist split is exact)
 
     def to_dict(self) -> dict:
         return {
@@ -212,6 +252,8 @@ class CriterionValue:
             "det_j11_m3": self.det_j11,
             "det_j22": self.det_j22,
             "position_m": self.position.tolist(),
+            "wrist_axis_distances_m": self.wrist_axis_distances.tolist(),
+            "coupling_j12_over_j11": self.coupling,
         }
 
 
@@ -220,8 +262,13 @@ def point_name(point) -> str:
 
 
 def criterion(robot: RobotDescription, q, point="wrist", check_limits: bool = True) -> CriterionValue:
-    """The criterion at one DH pose ``q`` (6,) [rad]; raises on a pose outside the limits."""
-    check_spherical_wrist(robot)
+    """The criterion at one DH pose ``q`` (6,) [rad]; raises on a pose outside the limits.
+
+    Besides the factors it reports how far the wrist is from spherical at ``q`` (the wrist
+    point's distances from axes 4-6, see :func:`wrist_point`) and the neglected coupling
+    ``||J12||_F / ||J11||_F`` at the reference point (0 at a spherical wrist's centre).
+    """
+    check_wrist(robot)
     q = robot.check_pose(q, field="pose") if check_limits else np.asarray(q, dtype=float)
     if q.shape != (robot.dof,) or not np.all(np.isfinite(q)):
         raise OutOfRangeError(f"pose must be {robot.dof} finite DH angles [rad], got {q!r}")
@@ -231,6 +278,8 @@ def criterion(robot: RobotDescription, q, point="wrist", check_limits: bool = Tr
         q=q.copy(), point=point_name(point), inv_kappa=float(a * w), inv_kappa_arm=float(a),
         inv_kappa_wrist=float(w), det_j11=float(np.linalg.det(j11[0])),
         det_j22=float(np.linalg.det(j22[0])), position=p[0],
+        wrist_axis_distances=wrist_point(robot, q[None])[1][0],
+        coupling=float(coupling_ratio(robot, q, point)[0]),
     )  # fmt: skip
 
 
@@ -316,9 +365,9 @@ def optimize(
 
     Joints 1 and 6 are fixed (``q1``, ``q6`` [rad], the paper's 0 and 45 deg). The same seed
     gives the same numbers; the result is polished by L-BFGS-B inside the bounds. At the wrist
-    centre joint 4 has no influence, so its optimal value is arbitrary there.
+    centre of a spherical wrist joint 4 has no influence, so its optimal value is arbitrary there.
     """
-    check_spherical_wrist(robot)
+    check_wrist(robot)
     free = (1, 2, 3, 4)
     bounds = _free_bounds(robot, free)
 

@@ -20,7 +20,15 @@ import numpy as np
 
 from ..errors import OutOfRangeError, UnknownNameError, VtestbedError
 from ..robots import RobotDescription
-from .kappa import arm_wrist_blocks, check_spherical_wrist, inv_kappa_batch, point_name, reference_offset
+from .kappa import (
+    arm_wrist_blocks,
+    check_wrist,
+    coupling_ratio,
+    inv_kappa_batch,
+    point_name,
+    reference_offset,
+    wrist_point,
+)
 
 
 @dataclass(frozen=True)
@@ -43,7 +51,7 @@ class JointPlaneMap:
 
 def joint_plane_map(robot: RobotDescription, q_fixed, point="wrist", step_deg: float = 0.5) -> JointPlaneMap:
     """The criterion over the joint 2-3 plane at the joint limits' resolution ``step_deg``."""
-    check_spherical_wrist(robot)
+    check_wrist(robot)
     q_fixed = robot.check_pose(q_fixed, field="q_fixed")
     if not 0.01 <= step_deg <= 10.0:
         raise OutOfRangeError(f"step_deg = {step_deg:g} deg is outside the valid range [0.01, 10] deg")
@@ -59,6 +67,25 @@ def joint_plane_map(robot: RobotDescription, q_fixed, point="wrist", step_deg: f
     pmap = JointPlaneMap(axes[0], axes[1], np.empty(0), q_fixed.copy(), spec)
     values = inv_kappa_batch(robot, pmap.poses(), point).reshape(axes[0].size, axes[1].size)
     return replace(pmap, values=values)
+
+
+def wrist_report(robot: RobotDescription, q, point="wrist") -> dict:
+    """How exact the arm-wrist split is at poses ``q`` (N, 6) [rad], for the JSON outputs.
+
+    ``wrist_axis_distances_m_max``: per axis 4, 5, 6, the largest distance of the wrist point
+    from it (the non-sphericity; 0 for a spherical wrist); ``coupling_j12_over_j11``: the range
+    of ``||J12||_F / ||J11||_F`` at ``point`` (what the criterion neglects; docs/poses.md).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    spherical = check_wrist(robot)
+    ratio = coupling_ratio(robot, q, point)
+    return {
+        "spherical": spherical,
+        "wrist_point": "origin of DH frame 5 (axes 4-6 meet)" if spherical
+        else "least-squares point of axes 4-6 (offset wrist)",
+        "wrist_axis_distances_m_max": wrist_point(robot, q)[1].max(axis=0).tolist(),
+        "coupling_j12_over_j11": [float(ratio.min()), float(ratio.max())],
+    }  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -262,7 +289,7 @@ def sample_poses(
     uniform jitter of +-``wrist_jitter_deg``. A pose is kept if it is inside the limits, meets
     ``constraints`` and has a criterion ``>= threshold``.
     """
-    check_spherical_wrist(robot)
+    check_wrist(robot)
     if n < 1:
         raise OutOfRangeError(f"n = {n} poses is outside the valid range [1, inf)")
     by_name = {r.name: r for r in regions}

@@ -32,10 +32,22 @@ def drawn(draw: Callable[[Path], Path]) -> str:
 # ---------------------------------------------------------------------- run
 
 
-def convergence(result: dict) -> str:
+def recorded(result: dict, root: Path | None, name: str) -> str | None:
+    """The PNG the run itself wrote for this result (``result.json: figures[name]``), embedded as
+    it is: no second drawing. None when the result records none (``--no-figures``) or it is gone."""
+    path = result.get("figures", {}).get(name) if root is not None else None
+    if not path:
+        return None
+    path = root / Path(path).name  # written beside result.json (the folder may have moved since)
+    return data_uri(path.read_bytes()) if path.is_file() else None
+
+
+def convergence(result: dict, root: Path | None = None) -> str:
     """Paper Fig. 10 from ``result.json``: estimates against the number of tests, relative to the truth."""
     from ..researcher.report import plot_convergence
 
+    if (png := recorded(result, root, "convergence")) is not None:
+        return png
     k_true = np.array([j["k_true"] for j in result["joints"]])
     conv = result["convergence"]
     conv = {  # strict JSON writes NaN as null
@@ -49,10 +61,12 @@ def convergence(result: dict) -> str:
     return drawn(lambda p: plot_convergence(conv, names, p, reference=k_true))
 
 
-def validation(result: dict) -> str | None:
+def validation(result: dict, root: Path | None = None) -> str | None:
     """Paper Fig. 11 from ``result.json`` (None without validation tests)."""
     from ..researcher.report import plot_validation
 
+    if result["validation"] and (png := recorded(result, root, "validation")) is not None:
+        return png
     rows = result["validation"]
     return drawn(lambda p: plot_validation(rows, p)) if rows else None
 

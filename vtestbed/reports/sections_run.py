@@ -143,7 +143,9 @@ def table5(folder: ResultFolder) -> Section:
 def convergence(folder: ResultFolder) -> Section:
     caption = "Each joint's estimate from the first n tests, relative to the truth, with +-1 estimated std (paper Fig. 10)"
     return Section(
-        "convergence", "Convergence", [Figure(figures.convergence(folder.data), caption, "fig-convergence")]
+        "convergence",
+        "Convergence",
+        [Figure(figures.convergence(folder.data, folder.root), caption, "fig-convergence")],
     )
 
 
@@ -165,7 +167,7 @@ def validation(folder: ResultFolder) -> Section | None:
                      Num(v["rel_err_rotation"], ".2f", 100)])  # fmt: skip
     cols = ["test", *[f"q{j + 1} [deg]" for j in range(6)], "|d| measured [mm]", "|d| calculated [mm]",
             "error [%]", "|rot| measured [mrad]", "|rot| calculated [mrad]", "error [%]"]  # fmt: skip
-    fig = figures.validation(folder.data)
+    fig = figures.validation(folder.data, folder.root)
     return Section("validation", "Validation (Table 6 poses)", [
         Table(cols, rows, id="validation-table", caption="Validation poses and the displacement the identified model predicts"),
         Figure(fig, "Calculated against measured displacement per validation test (paper Fig. 11)", "fig-validation")])  # fmt: skip

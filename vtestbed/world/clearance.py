@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from ..clearance import (
+    FIXED_TO_FLOOR,
     LINK_MARGIN_M,
     WIRE_MARGIN_M,
     Box,
@@ -87,7 +88,8 @@ def truth_clearance(rig: Rig, state: RigState, scanner_position) -> ClearanceRep
     links = [f"link{i + 1}" for i in range(rig.robot.dof) if f"link{i + 1}" in ids]
     tool = ["ft_mount", "ft_sensor", "stem"]
     out = [Clearance(part, ground, geom_distance(m, d, ids[part], ids[ground]), LINK_MARGIN_M)
-           for part in links + tool + ["block"] for ground in ("table_top", "floor")]  # fmt: skip
+           for part in links + tool + ["block"] for ground in ("table_top", "floor")
+           if (part, ground) not in FIXED_TO_FLOOR]  # fmt: skip
     out += [Clearance("wire", part, geom_distance(m, d, ids["wire"], ids[part]), WIRE_MARGIN_M)
             for part in ["base"] + links + tool]  # fmt: skip
     block = geom_shape(m, d, ids["block"], "block")
