@@ -53,6 +53,7 @@ import multiprocessing  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
+import warnings  # noqa: E402
 from collections import Counter  # noqa: E402
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -75,6 +76,9 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
 )
 from vtestbed.researcher.identify import stack  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames, scan_frames  # noqa: E402
+
+# the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
+warnings.filterwarnings("ignore", message=r".* is not physically possible")
 from vtestbed.researcher.statics import ExactStatics  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
