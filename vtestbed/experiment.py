@@ -42,7 +42,7 @@ from .lab import LabSetup
 from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
-from .scenario import Scenario
+from .scenario import Scenario, pose_field
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.repeats import draw_repeat_scans, repeat_rng
 from .world.rig import Rig
@@ -190,7 +190,7 @@ def simulate(
                 if tid not in writer.done or todo:
                     phys = run_test_physics(
                         rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
-                        placement, timings, label=f"{'poses' if group == 'identification' else 'validation'}.angles_deg[{i}]",
+                        placement, timings, label=pose_field(group, i),
                     )  # fmt: skip
                 if todo:  # before the test's row: a resumed run finds the test finished only with them
                     t2 = time.perf_counter()

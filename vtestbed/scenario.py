@@ -146,6 +146,12 @@ def _poses(table, robot: RobotDescription, f: Fields, prefix: str, lab: LabSetup
     return np.array(poses)
 
 
+def pose_field(group: str, index: int) -> str:
+    """The scenario-file field of a test's pose: ``poses.angles_deg[i]`` (identification) or
+    ``validation.angles_deg[i]``, as errors and warnings name it."""
+    return f"{'poses' if group == 'identification' else 'validation'}.angles_deg[{index}]"
+
+
 def _per_test(value, count: int, f: Fields, name: str, check) -> tuple:
     """One value per test: a single value for all, or a list whose length is 1 or ``count``."""
     values = value if isinstance(value, list) else [value]

@@ -25,7 +25,7 @@ from ..experiment import dataset_setup, test_id
 from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
-from ..scenario import Scenario
+from ..scenario import Scenario, pose_field
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
 from ..world.scan_noise import ScanGeometry, ScanNoise
@@ -237,7 +237,7 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
     for group, i, q, load in jobs:
         phys = run_test_physics(
             rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance, placement,
-            label=f"{'poses' if group == 'identification' else 'validation'}.angles_deg[{i}]",
+            label=pose_field(group, i),
         )  # fmt: skip
         rays = phys.scanner.ray_directions
         box = _GridBox.of(phys.scanner)
