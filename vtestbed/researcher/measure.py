@@ -155,6 +155,13 @@ def load_measurements(root: str | Path, progress: Callable[[int, int], None] | N
     return setup, out
 
 
+def stacked(tests: list[TestMeasurement]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tests' Jacobians (T, 6, n), wrenches (T, 6) and displacements (T, 6), as
+    :func:`~vtestbed.researcher.identify.identify` takes them."""
+    return (np.array([m.jacobian for m in tests]), np.array([m.wrench for m in tests]),
+            np.array([m.displacement for m in tests]))  # fmt: skip
+
+
 def identify_measurements(
     measurements: list[TestMeasurement], method: str = "fgls", joint_names=None, strict: bool = False
 ) -> IdentificationResult:
@@ -167,13 +174,7 @@ def identify_measurements(
     tests = [m for m in measurements if m.group == "identification"]
     if not tests:
         raise DatasetError("the dataset has no test in group 'identification'")
-    result = identify(
-        np.array([m.jacobian for m in tests]),
-        np.array([m.wrench for m in tests]),
-        np.array([m.displacement for m in tests]),
-        method=method,
-        joint_names=joint_names,
-    )
+    result = identify(*stacked(tests), method=method, joint_names=joint_names)
     notes = []
     still = motionless_tests(tests, result.compliance)
     if still:

@@ -44,10 +44,6 @@ WIRE_LINE_MAX_M = 0.5  # m: the force's line of action within this distance of B
 MIN_PREDICTED = 1e-12  # m or rad: below this a prediction carries no direction
 
 
-def _split(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return v[:3], v[3:]
-
-
 def predicted_displacements(tests: Sequence, compliance: np.ndarray) -> np.ndarray | None:
     """The paper model's displacement ``J C J^T F`` (T, 6) of each test, or None when the
     compliances (n,) [rad/(N*m)] are not all finite and positive (no trustworthy prediction)."""
@@ -57,42 +53,54 @@ def predicted_displacements(tests: Sequence, compliance: np.ndarray) -> np.ndarr
     return np.array([a_matrix(m.jacobian, m.wrench) @ c for m in tests])
 
 
-def opposite_tests(tests: Sequence, compliance: np.ndarray) -> list[str]:
-    """Ids of the tests whose measured translation points against the predicted one."""
+def _cosine(measured: np.ndarray, predicted: np.ndarray) -> float | None:
+    """Cosine between the measured and the predicted translation; None when either has no direction."""
+    meas_t, pred_t = measured[:3], predicted[:3]
+    norm = np.linalg.norm(meas_t) * np.linalg.norm(pred_t)
+    if np.linalg.norm(pred_t) > MIN_PREDICTED and norm > 0:
+        return float(meas_t @ pred_t / norm)
+    return None
+
+
+def _ratio(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """The larger of |measured| / |predicted| in translation and in rotation (0 if nothing is predicted)."""
+    ratios = [
+        np.linalg.norm(got) / np.linalg.norm(want)
+        for got, want in ((measured[:3], predicted[:3]), (measured[3:], predicted[3:]))
+        if np.linalg.norm(want) > MIN_PREDICTED
+    ]
+    return float(max(ratios)) if ratios else 0.0
+
+
+def _flagged(tests: Sequence, compliance: np.ndarray, is_bad) -> list[str]:
+    """Ids of the tests for which ``is_bad(measured, predicted)`` holds, with the given compliances."""
     predicted = predicted_displacements(tests, compliance)
     if predicted is None:
         return []
-    out = []
-    for m, p in zip(tests, predicted):
-        meas, pred = _split(np.asarray(m.displacement, dtype=float))[0], _split(p)[0]
-        norm = np.linalg.norm(meas) * np.linalg.norm(pred)
-        if np.linalg.norm(pred) > MIN_PREDICTED and norm > 0 and meas @ pred / norm < OPPOSITE_COSINE:
-            out.append(m.test_id)
-    return out
+    return [m.test_id for m, p in zip(tests, predicted) if is_bad(np.asarray(m.displacement, dtype=float), p)]
+
+
+def opposite_tests(tests: Sequence, compliance: np.ndarray) -> list[str]:
+    """Ids of the tests whose measured translation points against the predicted one."""
+
+    def against(measured, predicted):
+        cosine = _cosine(measured, predicted)
+        return cosine is not None and cosine < OPPOSITE_COSINE
+
+    return _flagged(tests, compliance, against)
 
 
 def far_tests(tests: Sequence, compliance: np.ndarray) -> list[str]:
     """Ids of the tests that moved more than :data:`FAR_FACTOR` times the prediction."""
-    predicted = predicted_displacements(tests, compliance)
-    if predicted is None:
-        return []
-    out = []
-    for m, p in zip(tests, predicted):
-        meas = _split(np.asarray(m.displacement, dtype=float))
-        for got, want in zip(meas, _split(p)):
-            if np.linalg.norm(want) > MIN_PREDICTED and np.linalg.norm(got) > FAR_FACTOR * np.linalg.norm(
-                want
-            ):
-                out.append(m.test_id)
-                break
-    return out
+    return _flagged(tests, compliance, lambda measured, predicted: _ratio(measured, predicted) > FAR_FACTOR)
 
 
 def wire_line_distance(wrench: np.ndarray) -> float:
     """Distance [m] from B's origin to the line of action of the wrench ``[f; tau]`` (6,) at B:
     ``|f x tau| / |f|^2`` (for a force f through a point r, tau = r x f, and this is the part of
     r perpendicular to f). Infinite for a pure moment."""
-    force, torque = _split(np.asarray(wrench, dtype=float))
+    wrench = np.asarray(wrench, dtype=float)
+    force, torque = wrench[:3], wrench[3:]
     f2 = float(force @ force)
     return float(np.linalg.norm(np.cross(force, torque)) / f2) if f2 > 0 else float("inf")
 
@@ -151,20 +159,11 @@ def screen(tests: Sequence) -> dict[str, str]:
 
 def _violation(measured: np.ndarray, predicted: np.ndarray) -> tuple[str, float]:
     """("opposite" or "far" or "", how badly): the score ranks offenders across tests."""
-    meas_t, pred_t = measured[:3], predicted[:3]
-    norm = np.linalg.norm(meas_t) * np.linalg.norm(pred_t)
-    if np.linalg.norm(pred_t) > MIN_PREDICTED and norm > 0:
-        cosine = meas_t @ pred_t / norm
-        if cosine < OPPOSITE_COSINE:
-            return "opposite", FAR_FACTOR * (1.0 - cosine)
-    ratios = [
-        np.linalg.norm(got) / np.linalg.norm(want)
-        for got, want in ((measured[:3], predicted[:3]), (measured[3:], predicted[3:]))
-        if np.linalg.norm(want) > MIN_PREDICTED
-    ]
-    if ratios and max(ratios) > FAR_FACTOR:
-        return "far", max(ratios)
-    return "", 0.0
+    cosine = _cosine(measured, predicted)
+    if cosine is not None and cosine < OPPOSITE_COSINE:
+        return "opposite", FAR_FACTOR * (1.0 - cosine)
+    ratio = _ratio(measured, predicted)
+    return ("far", ratio) if ratio > FAR_FACTOR else ("", 0.0)
 
 
 def plausibility_notes(tests: Sequence) -> list[str]:

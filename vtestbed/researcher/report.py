@@ -22,7 +22,7 @@ import numpy as np
 
 from ..plotting import pyplot, save_figure
 from .identify import identify_prefixes
-from .measure import TestMeasurement, predict_displacement
+from .measure import TestMeasurement, predict_displacement, stacked
 
 PAPER_FIRST_N = 6  # the paper's Table 5 uses the estimates from 6 to 20 tests
 
@@ -39,13 +39,7 @@ def convergence(measurements: list[TestMeasurement], method: str, joint_names) -
         return rows
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # small-n fits are expected to be ill-conditioned
-        fits = identify_prefixes(
-            np.array([m.jacobian for m in tests]),
-            np.array([m.wrench for m in tests]),
-            np.array([m.displacement for m in tests]),
-            method=method,
-            joint_names=joint_names,
-        )
+        fits = identify_prefixes(*stacked(tests), method=method, joint_names=joint_names)
     for n, res in enumerate(fits, start=1):
         rows["n"].append(n)
         rows["stiffness"].append(res.stiffness.tolist())
