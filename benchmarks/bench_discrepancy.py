@@ -87,7 +87,8 @@ from vtestbed.world.sensors import ForceTorqueSensor  # noqa: E402
 from vtestbed.world.truth import load_truth  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIO = ROOT / "scenarios" / "kr60_paper.toml"
+# --scenario sets it for the spawned workers too (they re-import this module and read the variable)
+SCENARIO = Path(os.environ.get("VTESTBED_BENCH_SCENARIO", ROOT / "scenarios" / "kr60_paper.toml"))
 ALPHA = 0.01
 REPEATS = 3  # repeat scans per test, as scenarios/kr60_hidden_link.toml
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
@@ -169,9 +170,11 @@ def world_key(name: str | None, size: str) -> str:
 
 
 def world_scenario(base, name: str | None, factor: float):
+    """``base`` with the effect ``name`` hidden at ``factor`` times its size; ``"a+b"`` hides
+    both (benchmarks/bench_two_effects.py)."""
     if name is None:
         return base
-    return dataclasses.replace(base, effects=(scaled(EFFECTS[name](), factor),))
+    return dataclasses.replace(base, effects=tuple(scaled(EFFECTS[n](), factor) for n in name.split("+")))
 
 
 _PREPARED: dict = {}  # one prepared world per worker process (tasks of a world come in a row)
@@ -578,6 +581,7 @@ def _upper95(k: int, n: int) -> float:
 
 # ---------------------------------------------------------------------------- main
 def main() -> None:
+    global SCENARIO
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=50, help="trials per world")
     parser.add_argument("--workers", type=int, default=2)
@@ -586,7 +590,12 @@ def main() -> None:
     parser.add_argument("--statics", choices=("exact", "paper"), default="exact",
                         help="the baseline, as `vtestbed diagnose --statics` (default exact)")  # fmt: skip
     parser.add_argument("--out", type=Path, help="write every trial's record to this JSON file")
+    parser.add_argument(
+        "--scenario", type=Path, default=SCENARIO, help="the experiment (default: the paper's)"
+    )
     args = parser.parse_args()
+    SCENARIO = args.scenario.resolve()
+    os.environ["VTESTBED_BENCH_SCENARIO"] = str(SCENARIO)
     names = [n.strip() for n in args.effects.split(",") if n.strip()]
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:

@@ -169,3 +169,27 @@ def test_feasibility_is_the_truth_worlds_verdict_and_is_cached(generated):
     )
     assert checker.tried == 2
     assert checker.check(q.copy(), "hook_edge", "ring_9", 900.0) == verdict and checker.tried == 2
+
+
+def test_a_minimax_design_plan_has_the_smallest_worst_joint_std(generated):
+    """criterion = "minimax": the plan's worst relative std (recomputed from the A matrices by
+    hand) is at most the D-optimal plan's on the same pool, and the note records it."""
+    from vtestbed.design import optimal
+
+    c, plans = generated
+    data = campaign_data(axes={"pose_set": ["design_optimal"], "n_tests": [4]})
+    data["campaign"]["pose_sets"] = {"pool": 12, "criterion": "minimax"}
+    cm = parse_campaign(data)
+    plan = posesets.build_plans(cm, {cm.plan_key(x) for x in cm.cells()})["design_optimal:4"]
+
+    def worst(p):
+        a = [optimal.candidate_tests(c.scenario.robot, q[None], [h], [r], t, c.scenario.lab, check_sensor=False,
+                                     outward=False, clearance=False)[0].a
+             for q, h, r, t in zip(p.q, p.hooks, p.anchors, p.tensions)]  # fmt: skip
+        info = sum(x.T @ np.linalg.inv(optimal.measurement_covariance()) @ x for x in a)
+        k = PAPER_TABLE5.stiffness
+        return float(np.max(np.sqrt(np.diag(np.linalg.inv(info))) * k))  # std(c)/c = std(c) k
+
+    assert plan.notes["criterion"] == "minimax"
+    assert plan.notes["criterion_value"] == pytest.approx(worst(plan), rel=1e-9)
+    assert worst(plan) <= worst(plans["design_optimal:4"]) * (1 + 1e-12)

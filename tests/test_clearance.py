@@ -20,7 +20,7 @@ from vtestbed.world.physics import run_test_physics
 from vtestbed.world.rig import Rig
 from vtestbed.world.scanner import Scanner
 
-PAPER = "scenarios/kr60_paper.toml"
+PAPER = "tests/data/kr60_paper_unclear.toml"
 # Measured with this module (truth world and nominal model agree): 0-based indices of the paper
 # scenario's tests that fail. 7, 9, 13, 15, 19 put link 2/3 into the table (Z4, elbow below the
 # table top), 7, 9, 15, 19 also run the wire through link 2 or 3; 4 and 10 pass the block's edge

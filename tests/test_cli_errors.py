@@ -150,4 +150,6 @@ def test_design_out_writes_a_scenario_simulate_accepts(tmp_path, capsys):
             "--out", str(tmp_path / "d")]  # fmt: skip
     assert main(argv) == 0, capsys.readouterr().err
     scenario = load_scenario(tmp_path / "d" / "design_scenario.toml")
-    assert scenario.name == "design_D_3" and scenario.n_tests == 3 and scenario.robot_name == "kuka_kr60_3"
+    assert (
+        scenario.name == "design_minimax_3" and scenario.n_tests == 3 and scenario.robot_name == "kuka_kr60_3"
+    )

@@ -50,7 +50,10 @@ def test_repeats_key_is_validated_and_defaults_to_none():
 
 def test_fingerprint_of_a_file_without_the_key_is_unchanged():
     # the value before repeats existed (commit fd16f5e hashes the same raw TOML mapping)
-    assert load_scenario(SCENARIOS / "kr60_paper.toml").fingerprint == "451b9fe93240999f"
+    assert (
+        load_scenario(SCENARIOS.parent / "tests" / "data" / "kr60_paper_unclear.toml").fingerprint
+        == "451b9fe93240999f"
+    )
     assert scenario(repeats=2).fingerprint != scenario().fingerprint
 
 

@@ -177,7 +177,7 @@ def test_cli_runs_regions_and_design_on_the_offset_wrist_ur10(tmp_path, capsys):
     from vtestbed.robots import load_robot
 
     ur10 = load_robot("ur10")
-    base = ["--robot", "ur10", "--step-deg", "2", "--n", "8", "--min-height", "0.5"]
+    base = ["--robot", "ur10", "--step-deg", "2", "--n", "30"]  # the UR10 lab's block zone
     assert main(["poses", "regions", *base, "--out", str(tmp_path)]) == 0
     out = json.loads(capsys.readouterr().out)
     q = np.radians(out["poses"]["q_deg"])

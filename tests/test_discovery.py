@@ -136,9 +136,9 @@ def test_predicted_separation_is_the_refit_on_the_proposed_tests(run):
     assert prop["separation_before"] == pytest.approx(_t_direct(a, b, white, ctx), rel=1e-6)
     assert _t_direct(b, a, white, ctx, new) < 1e-9 * np.sum(white(b.predict(ctx)) ** 2)  # nested
     assert prop["separation_after"] == pytest.approx(
-        40.43, abs=0.01
-    )  # the seeded run's value (clear tests only)
-    assert prop["separation_before"] == pytest.approx(10.33, abs=0.01)
+        49.96, abs=0.01
+    )  # the seeded run's value (clear tests only), quoted in docs/discrepancy.md
+    assert prop["separation_before"] == pytest.approx(8.44, abs=0.01)
 
 
 def test_one_toml_writer_escapes_quotes_and_backslashes(run, tmp_path):

@@ -166,7 +166,7 @@ def test_broken_datasets_get_clear_errors(small_run, tmp_path):
             rows[1][f"loaded_{c}"] = rows[1][f"unloaded_{c}"]
 
     _edit_csv(d / "tests.csv", slack)
-    with pytest.raises(Exception, match=r"tests \[1\] have a force change below 1 N: the wire was slack"):
+    with pytest.raises(Exception, match=r"tests T002 have a force change below 1 N: the wire was slack"):
         identify_dataset(d)
 
     d = _copy_dataset(src, tmp_path / "no_setup")

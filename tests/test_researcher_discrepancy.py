@@ -75,7 +75,7 @@ def paper():
 def test_a_candidate_fits_the_worlds_effect_to_the_noise(paper, truth, effect, label):
     """Noise-free world data with the effect: the paper's model misses it by far more than the
     scanner's noise; the model plus the named candidate reproduces the world far below it."""
-    setup, kin, ms = world_measurements(paper, (effect,), gravity=False, n=12)
+    setup, kin, ms = world_measurements(paper, (effect,), gravity=False, n=20)
     floor = NoiseFloor(np.diag(SIGMA**2), n_samples=100, n_tests=10)
     ctx, white = ModelContext(ms, setup, kin), Whitener(floor)
     (term,) = [c for c in candidates(kin) if c.label == label]

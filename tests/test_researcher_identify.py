@@ -104,7 +104,7 @@ def test_bad_inputs(robot, lab, rng):
         identify(jac, wrench, d, method="lsq")
     slack = wrench.copy()
     slack[1] = 0.0
-    with pytest.raises(SlackWireError, match=r"tests \[1\]"):
+    with pytest.raises(SlackWireError, match=r"tests 1 \(0-based\)"):
         identify(jac, slack, d)
     with pytest.raises(OutOfRangeError, match="shape"):
         identify(jac, wrench, np.zeros((2, 6)))

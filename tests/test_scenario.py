@@ -1,4 +1,5 @@
 import copy
+import re
 import tomllib
 from pathlib import Path
 
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 
 from vtestbed.errors import ScenarioError
+from vtestbed.robots import available_robots
 from vtestbed.scenario import load_scenario, parse_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -75,7 +77,12 @@ def _broken(data, path, value):
             r"identification.method: 'lasso' is not one of ols, fgls",
         ),
         (("seed",), -1, r"seed: must be a non-negative integer"),
-        (("robot",), "ur5", r"robot: unknown robot 'ur5'; valid names: kuka_kr60_3"),
+        # the valid names are the folders under models/, whichever robots they hold
+        (
+            ("robot",),
+            "ur5",
+            r"robot: unknown robot 'ur5'; valid names: " + re.escape(", ".join(available_robots())) + "$",
+        ),
         (("name",), KeyError, r"name: is required"),
     ],
 )

@@ -223,7 +223,9 @@ def test_conditioning_and_kappa_frames_honour_base_and_flange(skew_robot, lab):
 
 
 def test_committed_ur10_files_are_what_the_importer_produces(ur10_urdf):
-    imported = import_urdf(read_urdf(ur10_urdf), "ur10", tip="tool0", source_note=UR10_SOURCE)
+    imported = import_urdf(
+        read_urdf(ur10_urdf), "ur10", tip="tool0", source_note=UR10_SOURCE, rated_payload_kg=10.0
+    )
     directory = robots.robot_dir("ur10")
     for name, text in (
         ("robot.toml", imported.robot_toml),

@@ -1,7 +1,8 @@
 """Clearance of a test at its pose: links against the table and the floor, the wire, the scanner's view.
 
-The geometry both sides share (numpy only, SI): simple convex shapes (capsules, cylinders, boxes),
-their distance to a segment, the scene's shapes as the truth world draws them, and the rules of
+The geometry both sides share (numpy only, SI): simple convex shapes (capsules, cylinders, boxes;
+a mesh target's block is a :class:`~vtestbed.target_geometry.Polytope`, its convex hull), their
+distance to a segment, the scene's shapes as the truth world draws them, and the rules of
 :doc:`docs/clearance.md <clearance>` (which pairs, which margins). The truth world measures the
 same pairs with MuJoCo's own collision distance (:mod:`vtestbed.world.clearance`); the design tools
 measure them on the nominal kinematics (:mod:`vtestbed.design.clearance`).
@@ -19,6 +20,7 @@ import numpy as np
 
 from .errors import ClearanceError, UnknownNameError
 from .lab import LabSetup
+from .target_geometry import Polytope, hook_edges, hook_faces, mesh_polytope, point_segment_distance
 
 LINK_MARGIN_M = 0.010  # links, sensor and block against the table top and the floor
 WIRE_MARGIN_M = 0.005  # the wire against the links, the sensor and the block's edges
@@ -32,6 +34,12 @@ TABLE_THICKNESS_M = 0.04
 FACE_INSET = 0.1  # sight points sit this fraction of an edge inside a face's corners
 SCANNED_FACES = ("+x", "+y", "+z")
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+_CORNER_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+_EDGE_PAIRS = [(i, j) for i in range(8) for j in range(i + 1, 8)
+               if np.sum(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1]  # fmt: skip
+# the box's face k (+x, +y, +z) or 3 + k (-x, -y, -z) for the two axes an edge's corners share
+_EDGE_FACES = np.array([[k if _CORNER_SIGNS[i, k] > 0 else 3 + k for k in range(3)
+                         if _CORNER_SIGNS[i, k] == _CORNER_SIGNS[j, k]] for i, j in _EDGE_PAIRS])  # fmt: skip
 
 
 class ClearanceWarning(UserWarning):
@@ -85,10 +93,19 @@ class Box:
 
     def edges(self) -> tuple[np.ndarray, np.ndarray]:
         """The 12 edges as (12, 3) start and end points [m]."""
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        signs = _CORNER_SIGNS
         corners = self.center + (signs * self.half) @ self.rotation.T
-        pairs = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(signs[i] != signs[j]) == 1]
-        return corners[[i for i, _ in pairs]], corners[[j for _, j in pairs]]
+        return corners[[i for i, _ in _EDGE_PAIRS]], corners[[j for _, j in _EDGE_PAIRS]]
+
+    def planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit outward normals (6, 3) (+x, +y, +z, -x, -y, -z of the box) and offsets (6,) [m]."""
+        normals = np.concatenate([self.rotation.T, -self.rotation.T])
+        return normals, normals @ self.center + np.tile(self.half, 2)
+
+    @property
+    def edge_faces(self) -> np.ndarray:
+        """(12, 2): the two faces (rows of :meth:`planes`) each edge of :meth:`edges` bounds."""
+        return _EDGE_FACES
 
 
 @dataclass(frozen=True)
@@ -100,15 +117,6 @@ class Plane:
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
         return np.asarray(points, dtype=float)[..., 2] - self.height
-
-
-def point_segment_distance(points, p0, p1) -> np.ndarray:
-    """Distance [m] of points (..., 3) from the segment ``p0 -> p1`` (broadcast)."""
-    points, p0, p1 = (np.asarray(x, dtype=float) for x in (points, p0, p1))
-    d = p1 - p0
-    dd = np.sum(d * d, axis=-1)
-    t = np.clip(np.sum((points - p0) * d, axis=-1) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
-    return np.linalg.norm(points - p0 - t[..., None] * d, axis=-1)
 
 
 def segment_segment_distance(p0, p1, q0, q1) -> np.ndarray:
@@ -193,13 +201,16 @@ def tool_shapes(flange_pose, lab: LabSetup) -> list:
 
     mount_top = sensor.adapter_thickness + sensor.height / 2
     block_origin = f @ lab.block_in_flange
+    if block.mesh is None:
+        solid = Box("block", block_origin[:3, 3] + rot @ np.full(3, -block.edge / 2), rot,
+                    np.full(3, block.edge / 2))  # fmt: skip
+    else:  # a mesh target: its convex hull, given in B (vtestbed.target_geometry)
+        solid = mesh_polytope(block.mesh).moved(block_origin)
     return [
         along(0.0, mount_top, sensor.diameter / 2, "ft_mount"),
         along(top - sensor.height / 2, top, sensor.diameter / 2, "ft_sensor"),
         along(top, top + block.standoff, STEM_RADIUS_M, "stem"),
-        Box(
-            "block", block_origin[:3, 3] + rot @ np.full(3, -block.edge / 2), rot, np.full(3, block.edge / 2)
-        ),
+        solid,
     ]
 
 
@@ -231,12 +242,6 @@ def face_points(block_pose, edge: float) -> dict[str, np.ndarray]:
         pts[:, others[1]] = (mid, lo, hi, lo, hi)
         out[label] = b[:3, 3] + pts @ b[:3, :3].T
     return out
-
-
-def hook_edges(block: Box, hook_point) -> np.ndarray:
-    """(12,) bool: the block's edges the wire may touch (the ones through the hook point)."""
-    a, b = block.edges()
-    return point_segment_distance(np.asarray(hook_point, dtype=float), a, b) < 1e-6
 
 
 # ---------------------------------------------------------------------- results
@@ -320,8 +325,9 @@ def _solid_distance(solid, ground) -> float:
     they hold every feature pair that can carry the closest points of two convex solids.
     """
     if isinstance(solid, Box):
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-        pts = solid.center + (signs * solid.half) @ solid.rotation.T
+        pts = solid.center + (_CORNER_SIGNS * solid.half) @ solid.rotation.T
+    elif isinstance(solid, Polytope):
+        pts = solid.vertices
     else:
         ref = np.array([1.0, 0.0, 0.0]) if abs(solid.axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         u = np.cross(solid.axis, ref)
@@ -339,34 +345,49 @@ def _solid_distance(solid, ground) -> float:
     return dist
 
 
-def wire_clearances(hook_point, anchor, obstacles: list, block: Box, wire_radius: float) -> list[Clearance]:
+def wire_clearances(hook_point, anchor, obstacles: list, block, wire_radius: float) -> list[Clearance]:
     """The wire (hook -> ring) against ``obstacles`` (links, base, sensor, stem) and the block.
 
-    The block's edges count except those through the hook (the wire leaves from there); edge
-    distances are from the wire's surface to the edge line. A wire that leaves the hook into the
-    block adds a ``block (cuts into it)`` pair with its depth.
+    ``block`` is a :class:`Box` or a :class:`Polytope` (a mesh target's convex hull). Its edges
+    count except the hook's seat (:func:`hook_edges`); edge distances are from the wire's surface
+    to the edge. A wire that leaves the hook into the block adds a ``block (cuts into it)`` pair
+    with its depth.
     """
     return wire_clearances_many(hook_point, np.asarray(anchor, dtype=float)[None], obstacles, block,
                                 wire_radius)[0]  # fmt: skip
 
 
-def wire_clearances_many(hook_point, anchors, obstacles: list, block: Box, wire_radius: float):
-    """:func:`wire_clearances` for one hook and (k, 3) ring points at once: k lists of pairs."""
+def wire_clearances_many(hook_point, anchors, obstacles: list, block, wire_radius: float):
+    """:func:`wire_clearances` for one hook and (k, 3) ring points at once: k lists of pairs.
+
+    The wire cuts into the (convex) block when it leaves the hook inside the tangent cone of the
+    faces the hook lies on (pointing into every one of them); its depth is the block's least
+    signed distance along the wire beyond 0.1 mm from the hook. A hook on no face (inside a
+    non-convex target's hull) cuts in when that depth is negative.
+    """
     anchors = np.asarray(anchors, dtype=float)
     hook = np.broadcast_to(np.asarray(hook_point, dtype=float), anchors.shape)
     dist = {s.name: capsule_distance(hook, anchors, wire_radius, s) for s in obstacles}
     a, b = block.edges()
-    free = ~hook_edges(block, hook[0])
+    free = ~hook_edges(block, hook[0], WIRE_MARGIN_M + wire_radius)
     edge = segment_segment_distance(hook[:, None], anchors[:, None], a[free], b[free]).min(axis=1)
-    # a wire leaving the hook into the block (a convex body: leaving outward, it never re-enters)
     u = (anchors - hook) / np.linalg.norm(anchors - hook, axis=1, keepdims=True)
-    inside = capsule_distance(hook + 1e-4 * u, anchors, 0.0, block)
+    on = hook_faces(block, hook[0])
+    if on.any():  # leaving outward, a wire never re-enters a convex body: the depth only if it cuts
+        cuts = (u @ block.planes()[0][on].T).max(axis=1) < 0.0
+        depth = np.zeros(len(anchors))
+        depth[cuts] = capsule_distance(hook[cuts] + 1e-4 * u[cuts], anchors[cuts], 0.0, block)
+        short = cuts & (depth >= 0.0)  # it leaves again within 0.1 mm (a hook by a vertex)
+        depth[short] = capsule_distance(hook[short], anchors[short], 0.0, block)
+    else:
+        depth = capsule_distance(hook + 1e-4 * u, anchors, 0.0, block)
+        cuts = depth < 0.0
     out = []
     for k in range(len(anchors)):
         entries = [Clearance("wire", name, float(x[k]), WIRE_MARGIN_M) for name, x in dist.items()]
         entries.append(Clearance("wire", "block edges", float(edge[k] - wire_radius), WIRE_MARGIN_M))
-        if inside[k] < 0.0:
-            entries.append(Clearance("wire", "block (cuts into it)", float(inside[k]), 0.0))
+        if cuts[k]:
+            entries.append(Clearance("wire", "block (cuts into it)", float(depth[k]), 0.0))
         out.append(entries)
     return out
 

@@ -83,6 +83,14 @@ class DatasetSetup:
     sensor_name: str
     sensor_range: tuple[float, ...]  # |Fx|,|Fy|,|Fz| [N], |Tx|,|Ty|,|Tz| [N*m]
     notes: str = ""
+    # A mesh target (docs/targets.md): kind, file, sha256, extents_m, face_margin_m (the chamfer
+    # width: > 0 makes the plane fits drop each face's boundary band), mass_kg; None: the plain box.
+    target: dict | None = None
+
+    @property
+    def block_face_margin(self) -> float:
+        """How far [m] the target's flat faces stop short of its bounding box's edges (0: a box)."""
+        return float((self.target or {}).get("face_margin_m", 0.0))
 
     def to_json(self) -> dict:
         return {
@@ -94,6 +102,7 @@ class DatasetSetup:
             "block_edge_m": self.block_edge,
             "force_sensor": {"name": self.sensor_name, "range_N_Nm": list(self.sensor_range)},
             "notes": self.notes,
+            **({} if self.target is None else {"target": self.target}),
         }
 
     @property
@@ -131,9 +140,12 @@ def scanner_pose_as_recorded(pose: np.ndarray) -> np.ndarray:
 
 def read_setup(root: str | Path) -> DatasetSetup:
     """setup.json, each field checked (:mod:`vtestbed.dataset_checks`), or a DatasetError naming it."""
-    root = Path(root)
-    path = root / SETUP_FILE
-    data = read_json(path, "dataset setup file", DatasetError)
+    path = Path(root) / SETUP_FILE
+    return parse_setup(read_json(path, "dataset setup file", DatasetError), path)
+
+
+def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
+    """A setup table (setup.json's keys) checked field by field; errors name ``path`` and the key."""
     for key in (
         "robot",
         "angle_convention",
@@ -158,7 +170,19 @@ def read_setup(root: str | Path) -> DatasetSetup:
         sensor_name=sensor_name,
         sensor_range=sensor_range,
         notes=str(data.get("notes", "")),
+        target=_target(data.get("target"), path),
     )
+
+
+def _target(target, path) -> dict | None:
+    """setup.json's optional ``target`` table; ``face_margin_m`` a length in [0, 0.1] m."""
+    if target is None:
+        return None
+    if not isinstance(target, dict):
+        raise DatasetError(f"{path}: target must be a table (kind, file, face_margin_m, ...), got {target!r}")
+    if "face_margin_m" in target:
+        checks.number(target["face_margin_m"], path, "target.face_margin_m", 0.0, 0.1, "m")
+    return target
 
 
 def write_setup(root: str | Path, setup: DatasetSetup) -> None:

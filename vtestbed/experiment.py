@@ -96,6 +96,7 @@ def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
         sensor_name=lab.sensor.name,
         sensor_range=lab.sensor.wrench_range,
         notes=f"simulated by vtestbed from scenario {scenario.name!r}",
+        target=None if lab.block.mesh is None else lab.block.mesh.setup_json(),
     )
 
 
@@ -265,20 +266,23 @@ def identify_dataset(
     """
     timings = timings or Timings()
     bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="process clouds", unit="test")
 
     def tick(done, total):
+        nonlocal bar
+        if progress and bar is None:  # once the dataset's files have been read: an error in them
+            from tqdm import tqdm  # is then one line, not appended to an empty bar
+
+            bar = tqdm(desc="process clouds", unit="test", total=total)
         if bar is not None:
             bar.total = total
             bar.update(done - bar.n)
 
     t0 = time.perf_counter()
-    setup, measurements = load_measurements(root, progress=tick)
-    if bar:
-        bar.close()
+    try:
+        setup, measurements = load_measurements(root, progress=tick)
+    finally:
+        if bar:
+            bar.close()  # ends the bar's line before an error is printed
     t1 = time.perf_counter()
     result = identify_measurements(
         measurements, method=method, joint_names=load_robot(setup.robot).joint_names, strict=strict

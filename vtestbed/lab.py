@@ -35,8 +35,6 @@ MIN_TENSION_N = 1.0  # below this a steel wire is not reliably taut
 DEFAULT_SCANNER_DISTANCE_M = 0.6  # scanner optical centre to block centre, the paper's robot
 G_N_PER_KG = 9.81  # a rated payload [kg] as the force [N] it may put on the flange
 PAPER_RATED_PAYLOAD_KG = 60.0  # the KR60-3's (models/kuka_kr60_3/robot.toml; a test keeps them equal)
-# Until the URDF importer writes rated_payload_kg: the maker's rated payload of imported robots.
-RATED_PAYLOAD_FALLBACK_KG = {"ur10": 10.0}
 FLOOR_HEIGHT_M = 0.0  # the floor plane of the scene; nothing of the lab goes below it
 # The KR60's joint 2 axis point at q = 0 (DH frame 2's origin) and reach (the largest flange distance
 # from that axis, stretched: a2 + |(a3, d4)| + d6): every other robot's lab is scaled from them.
@@ -89,11 +87,15 @@ class BlockSpec:
     density: float = 2700.0  # kg/m^3
     standoff: float = 0.02  # m, stem between the sensor's tool face and the block
     stem_mass: float = 0.15  # kg
+    mesh: object = None  # a vtestbed.target_mesh.MeshTarget (edge: its largest extent), None: the box
 
     @property
     def hooks(self) -> dict[str, tuple[float, float, float]]:
         """Hook points in the block frame B [m]. B's origin is the scanned corner and the block
-        occupies [-edge, 0]^3; the hooks sit on the hidden faces, off the sensor axis."""
+        occupies [-edge, 0]^3; the hooks sit on the hidden faces, off the sensor axis (a mesh
+        target's: moved to the nearest point of its surface, docs/targets.md)."""
+        if self.mesh is not None:
+            return self.mesh.hooks
         e, h = -self.edge, -self.edge / 2
         return {
             "hook_x": (e, h, h),  # centre of the -x face
@@ -103,7 +105,7 @@ class BlockSpec:
 
     @property
     def mass(self) -> float:
-        return self.density * self.edge**3
+        return self.density * self.edge**3 if self.mesh is None else self.mesh.mass
 
     def hook(self, name: str) -> np.ndarray:
         if name not in self.hooks:
@@ -344,7 +346,7 @@ def lab_for_robot(robot) -> LabSetup:
     Positions scale by ``robot_reach / PAPER_REACH_M`` about joint 2's axis point and move with
     it; heights stop at the floor, the stand-off at the scanner's working distance. Scale and
     shift are rounded to 1e-9 so that the KR60 gets :data:`PAPER_LAB` exactly. The rated payload
-    is the description's ``rated_payload_kg``, else :data:`RATED_PAYLOAD_FALLBACK_KG`'s.
+    is the description's ``rated_payload_kg`` (None: no cap from the robot).
     """
     scale = round(robot_reach(robot) / PAPER_REACH_M, 9)
     shoulder = robot.frame_poses(np.zeros(robot.dof))[1][:3, 3]
@@ -358,7 +360,7 @@ def lab_for_robot(robot) -> LabSetup:
     table = TableSpec((at(t.center[0], 0), at(t.center[1], 1)), (t.size[0] * scale, t.size[1] * scale),
                       at(t.height, 2, True), tuple(at(x, 0) for x in t.ring_x), tuple(at(y, 1) for y in t.ring_y))  # fmt: skip
     zone = BlockZone(at(z.min_height, 2, True), tuple(at(v, i % 3, i % 3 == 2) for i, v in enumerate(z.box)))
-    kg = robot.rated_payload_kg or RATED_PAYLOAD_FALLBACK_KG.get(robot.name)
+    kg = robot.rated_payload_kg
     return dataclasses.replace(PAPER_LAB, table=table, zone=zone, rated_payload_kg=kg,
                                scanner_distance=min(high, max(low, DEFAULT_SCANNER_DISTANCE_M * scale)))  # fmt: skip
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +49,9 @@ TOP_LEVEL = (
     "validation",
     "campaign",
     "world",
+    "target",
 )
+TARGET_KEYS = ("mesh", "units", "density_kg_m3", "mass_kg")
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,8 @@ class Scenario:
     def fingerprint(self) -> str:
         """A hash of everything that shapes the simulated data (for resuming safely)."""
         text = json.dumps(self.raw, sort_keys=True, default=str)
+        if self.lab.block.mesh is not None:  # the mesh file's content, not only its name
+            text += self.lab.block.mesh.sha256
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -214,6 +218,29 @@ def _force_sensor_plan(table, f: Fields) -> ForceSensorPlan:
     )  # fmt: skip
 
 
+def _target(table, lab: LabSetup, robot: RobotDescription, f: Fields) -> LabSetup:
+    """The lab with the ``[target]`` mesh as its block (:mod:`vtestbed.target_mesh`, docs/targets.md).
+
+    ``mesh`` is relative to the scenario file's folder; ``units`` "mm" (default) or "m"; the mass
+    from ``density_kg_m3`` (default: the lab block's) or ``mass_kg``. The lab is checked again
+    (the hooks moved onto the mesh).
+    """
+    from .lab import check_lab
+    from .target_mesh import load_mesh_target
+
+    f.table(table, "target", TARGET_KEYS)
+    if "mesh" not in table:
+        raise f.error("target.mesh", "is required (an STL, OBJ or PLY file, relative to the scenario file)")
+    path = Path(f.string(table["mesh"], "target.mesh", allow_empty=False))
+    if not path.is_absolute() and f.source is not None:
+        path = Path(f.source).parent / path
+    units = f.string(table.get("units", "mm"), "target.units")
+    density = table.get("density_kg_m3", None if "mass_kg" in table else lab.block.density)
+    target = load_mesh_target(path, units, density, table.get("mass_kg"), fields=f)
+    block = replace(lab.block, edge=target.edge, density=target.density, mesh=target)
+    return check_lab(replace(lab, block=block), robot, f)
+
+
 def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     """Validate a scenario mapping (as read from TOML) and build a :class:`Scenario`."""
     f = Fields(source)
@@ -228,6 +255,12 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     except VtestbedError as exc:
         raise f.error("robot", str(exc)) from None
     lab = parse_lab(data.get("lab", {}), f, robot)
+    if "target" in data:
+        if "edge_m" in data.get("lab", {}).get("block", {}):
+            raise f.error(
+                "lab.block.edge_m", "must not be given with [target]: the mesh sets the block's size"
+            )
+        lab = _target(data["target"], lab, robot, f)
     seed = f.seed(data.get("seed", 0), "seed")
     poses = _poses(data["poses"], robot, f, "poses.", lab)
     load = _load_plan(data.get("load", {}), len(poses), lab, f, "load.")

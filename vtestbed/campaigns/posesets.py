@@ -245,7 +245,8 @@ def design_plan(robot, pool_q: np.ndarray, n: int, options, checker, stiffness_p
         excluded |= bad
     tests = [cands[i] for i in chosen]
     notes = {"candidates": len(cands), "candidates_infeasible": len(excluded), "criterion": options.criterion,
-             "criterion_value": {"D": sel.report.d_value, "A": sel.report.a_value, "E": sel.report.e_value}[options.criterion]}  # fmt: skip
+             "criterion_value": {"D": sel.report.d_value, "A": sel.report.a_value, "E": sel.report.e_value,
+                                 "minimax": sel.report.minimax_value}[options.criterion]}  # fmt: skip
     notes |= checker.clearance_notes(before)
     return TestPlan("design_optimal", np.array([t.q for t in tests]), tuple(t.hook for t in tests),
                     tuple(t.anchor for t in tests), tuple(t.tension for t in tests), notes)  # fmt: skip

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..design.priors import NAMED_PRIORS, PAPER_TABLE5
 from ..errors import OutOfRangeError
-from ..lab import DEFAULT_TENSION_N
+from ..lab import DEFAULT_TENSION_N, LabSetup
 from ..scenario import FT_NOISE_STD_MAX, Scenario, parse_scenario, read_scenario_file
 from ..schema import Fields
 from ..world.scan_noise import ScanNoise, scaled_noise
@@ -52,7 +52,7 @@ NESTED_POSE_SETS = ("scenario", "kappa_regions", "random")  # n tests = the firs
 METHODS = ("ols", "fgls")  # "wls" needs a stated displacement covariance: not a campaign axis
 AXES = ("pose_set", "n_tests", "scanner_noise_scale", "ft_noise_scale", "method")  # canonical order
 CAMPAIGN_KEYS = ("seed", "trials", "paired", "axes", "pose_sets", "description")
-DESIGN_CRITERIA = ("D", "A", "E")
+DESIGN_CRITERIA = ("D", "A", "E", "minimax")
 DESIGN_POOLS = ("kappa_regions", "random")
 MAX_TRIALS = 100_000
 MAX_NOISE_SCALE = 1000.0
@@ -68,9 +68,11 @@ class PoseSetOptions:
     lowest criterion inv_kappa of a region pose; ``min_height_m`` [m] and ``box_m``
     (xmin, ymin, zmin, xmax, ymax, zmax) [m]: where the block may be (lab constraints, also for
     ``random``); ``wrist_jitter_deg`` [deg]: spread of joints 4, 5 around the optimum;
-    ``criterion``: D, A or E for ``design_optimal``; ``design_pool``: the poses it chooses from;
+    ``criterion``: D, A, E or minimax (the worst joint's relative std) for ``design_optimal``; ``design_pool``: the poses it chooses from;
     ``stiffness_prior``: a prior's name (:data:`vtestbed.design.priors.NAMED_PRIORS`) or the
     researcher's own values [N*m/rad]; the D criterion does not depend on it, A and E do.
+    The defaults here are the paper's lab; a campaign's come from its scenario's lab
+    (:func:`pose_set_defaults`).
     """
 
     pool: int = 40
@@ -82,6 +84,14 @@ class PoseSetOptions:
     criterion: str = "D"
     design_pool: str = "kappa_regions"
     stiffness_prior: str | tuple[float, ...] = PAPER_TABLE5.name
+
+
+def pose_set_defaults(lab: LabSetup) -> PoseSetOptions:
+    """The ``[campaign.pose_sets]`` defaults in ``lab``: its default wire tension and block zone
+    (:func:`vtestbed.lab.lab_for_robot`; exactly the class defaults in the paper's lab)."""
+    return PoseSetOptions(
+        tension_N=lab.default_tension_N, min_height_m=lab.zone.min_height, box_m=tuple(lab.zone.box)
+    )
 
 
 @dataclass(frozen=True)
@@ -224,7 +234,7 @@ def _axis_values(name: str, values, scenario: Scenario, f: Fields) -> tuple:
 def _pose_set_options(table, scenario: Scenario, f: Fields) -> PoseSetOptions:
     prefix = "campaign.pose_sets."
     f.table(table, "campaign.pose_sets", tuple(fld.name for fld in dataclasses.fields(PoseSetOptions)))
-    d = PoseSetOptions()
+    d = pose_set_defaults(scenario.lab)
     box = table.get("box_m", list(d.box_m))
     if not isinstance(box, list) or len(box) != 6:
         raise f.error(

@@ -36,10 +36,12 @@ def parse_angles_deg(text: str, field: str, count: int = 6) -> np.ndarray:
 
 
 def pose_from_args(robot, args) -> np.ndarray:
-    """DH pose [rad] from ``--q-deg`` (DH) or ``--controller-deg`` (KUKA A1..A6)."""
+    """DH pose [rad] from ``--q-deg`` (DH) or ``--controller-deg`` (KUKA A1..A6), inside the joint
+    limits (an error names the option, the joint and its limits)."""
     if getattr(args, "controller_deg", None):
-        return robot.controller_to_dh(parse_angles_deg(args.controller_deg, "--controller-deg", robot.dof))
-    return parse_angles_deg(args.q_deg, "--q-deg", robot.dof)
+        q = robot.controller_to_dh(parse_angles_deg(args.controller_deg, "--controller-deg", robot.dof))
+        return robot.check_pose(q, field="--controller-deg")
+    return robot.check_pose(parse_angles_deg(args.q_deg, "--q-deg", robot.dof), field="--q-deg")
 
 
 NEGATIVE_HINT = "negative first value: --q-deg=-10,20,... or --q-deg -10,20,..."
@@ -52,7 +54,8 @@ def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"DH joint angles in degrees (default %(default)s; {NEGATIVE_HINT})",
     )
     parser.add_argument(
-        "--controller-deg", help="KUKA controller angles A1..A6 in degrees (overrides --q-deg)"
+        "--controller-deg",
+        help="controller angles in degrees (KUKA A1..A6, an imported robot's URDF joint positions; overrides --q-deg)",
     )
 
 
@@ -141,17 +144,21 @@ def join_negative_lists(argv: list[str]) -> list[str]:
 
 def add_load_arguments(parser: argparse.ArgumentParser) -> None:
     """``--tension``, ``--anchor``, ``--hook``: one wire load, with the lab's defaults."""
-    from ..lab import DEFAULT_TENSION_N
     from ..scenario import DEFAULT_ANCHOR, DEFAULT_HOOK
 
     parser.add_argument(
         "--tension",
         type=number(0, 1e5, "N"),
-        default=DEFAULT_TENSION_N,
-        help="wire tension in N (default %(default)s)",
+        default=None,
+        help="wire tension in N (default: the robot's lab's, docs/lab.md: 200 N for the KR60-3)",
     )
     parser.add_argument("--anchor", default=DEFAULT_ANCHOR, help="table ring (default %(default)s)")
     parser.add_argument("--hook", default=DEFAULT_HOOK, help="block hook (default %(default)s)")
+
+
+def load_tension(args, lab) -> float:
+    """``--tension`` [N] checked against ``lab``'s range, or the lab's default tension."""
+    return lab.check_tension(lab.default_tension_N if args.tension is None else args.tension, "--tension")
 
 
 shown: set[str] = set()  # warnings already printed in this command

@@ -33,6 +33,7 @@ COMMANDS = {
     "diagnose": "vtestbed.cli.diagnose",
     "report": "vtestbed.cli.report",
     "discover": "vtestbed.cli.discover",
+    "dataset": "vtestbed.cli.dataset",
 }
 COMMAND_MODULES = list(dict.fromkeys(COMMANDS.values()))
 

@@ -10,17 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from ..design import influence, kappa, regions
-from ..design import optimal as design
-from ..design.clearance import NominalClearance
 from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
-from ..design.priors import NAMED_PRIORS, stiffness_prior
-from ..errors import OutOfRangeError, ScenarioError, UnknownNameError, VtestbedError, check_range
+from ..errors import OutOfRangeError, ScenarioError, check_range
 from ..files import dumps, read_json
-from ..lab import DEFAULT_TENSION_N, PAPER_LAB
+from ..lab import lab_for_robot
 from ..robots import DEFAULT_ROBOT, load_robot
 from .args import NEGATIVE_HINT, SEED, integer, number, output_dir, parse_angles_deg, parse_numbers
-
-DEFAULT_BOX = "0.3,-1.0,0.0,2.3,1.0,2.2"  # m: xmin,ymin,zmin,xmax,ymax,zmax, in front of the robot
 
 
 def _point(text: str):
@@ -71,10 +66,16 @@ def _read_poses(path: str, robot) -> np.ndarray:
     return np.radians(q)
 
 
-def _constraints(args) -> regions.PoseConstraints:
-    box = parse_numbers(args.box, "--box", 6, "m") if args.box else None
+def _constraints(args, robot) -> regions.PoseConstraints:
+    """The block zone of the options, defaulting to the robot's lab's (:func:`vtestbed.lab.lab_for_robot`)."""
+    zone = lab_for_robot(robot).zone
+    if args.box is None:
+        box = zone.box
+    else:
+        box = parse_numbers(args.box, "--box", 6, "m") if args.box else None
+    min_height = zone.min_height if args.min_height is None else args.min_height
     return regions.PoseConstraints(
-        point="block", min_height=args.min_height, box_min=None if box is None else tuple(box[:3]),
+        point="block", min_height=min_height, box_min=None if box is None else tuple(box[:3]),
         box_max=None if box is None else tuple(box[3:]),
     )  # fmt: skip
 
@@ -156,11 +157,11 @@ def _regions_and_poses(robot, args):
     q = _optimum(robot, args).q
     pmap = regions.joint_plane_map(robot, q, _point(args.point), step_deg=args.step_deg)
     found = regions.restrict(
-        regions.find_regions(pmap, threshold=args.threshold), pmap, robot, _constraints(args)
+        regions.find_regions(pmap, threshold=args.threshold), pmap, robot, _constraints(args, robot)
     )
     select = args.select.split(",") if args.select else None
     rng = np.random.default_rng(args.seed)
-    sample = regions.sample_poses(robot, pmap, found, args.n, rng, select=select, constraints=_constraints(args),
+    sample = regions.sample_poses(robot, pmap, found, args.n, rng, select=select, constraints=_constraints(args, robot),
                                   wrist_jitter_deg=args.wrist_jitter_deg, threshold=args.threshold)  # fmt: skip
     return pmap, found, sample
 
@@ -168,7 +169,7 @@ def _regions_and_poses(robot, args):
 def _cmd_regions(args) -> int:
     robot = load_robot(args.robot)
     pmap, found, sample = _regions_and_poses(robot, args)
-    data = {"constraints": vars(_constraints(args)), "regions": [r.to_dict(pmap) for r in found],
+    data = {"constraints": vars(_constraints(args, robot)), "regions": [r.to_dict(pmap) for r in found],
             "poses": sample.to_dict(), "wrist": regions.wrist_report(robot, sample.q, pmap.point)}  # fmt: skip
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -176,52 +177,6 @@ def _cmd_regions(args) -> int:
         plot_joint_plane(pmap, found, Path(args.out) / "regions.png", marks)
         (Path(args.out) / "poses.json").write_text(dumps(sample.to_dict(), indent=1) + "\n")
     _emit(args, data, "regions.json")
-    return 0
-
-
-def _prior(text: str, dof: int) -> np.ndarray:
-    """A named prior, or ``dof`` comma-separated values in N*mm/rad (the paper's unit)."""
-    if text in NAMED_PRIORS:
-        return stiffness_prior(text, dof, "--stiffness-prior")
-    if not any(c.isdigit() for c in text):
-        raise UnknownNameError("--stiffness-prior", text, NAMED_PRIORS)
-    return stiffness_prior(
-        parse_numbers(text, "--stiffness-prior", dof, "N*mm/rad") / 1e3, dof, "--stiffness-prior"
-    )
-
-
-def _cmd_design(args) -> int:
-    robot = load_robot(args.robot)
-    if args.poses:
-        q = _read_poses(args.poses, robot)
-    else:
-        q = _regions_and_poses(robot, args)[2].q
-    hooks = args.hooks.split(",") if args.hooks else None
-    anchors = args.anchors.split(",") if args.anchors else None
-    nominal = False if args.no_clearance else NominalClearance(robot, PAPER_LAB)
-    cands = design.candidate_tests(robot, q, hooks, anchors, tension=args.tension, clearance=nominal)
-    if not cands:  # say why rather than fail later on an empty design
-        refused = "off" if args.no_clearance else f"{nominal.refused} (pose, hook, ring) refused"
-        raise VtestbedError(
-            f"no feasible test among {len(q)} poses x hooks x rings on robot {robot.name!r} "
-            f"(clearance check: {refused}; the rest: wire into the block or F/T range); "
-            "try other poses, --hooks/--anchors, or --no-clearance (docs/clearance.md)"
-        )
-    prior = _prior(args.stiffness_prior, robot.dof)
-    sel = design.select_tests(cands, args.tests, prior, criterion=args.criterion, method=args.method,
-                              sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
-    data = {"candidates": len(cands), "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
-            "stiffness_prior": args.stiffness_prior, "stiffness_prior_Nmm_per_rad": (prior * 1e3).tolist(),
-            "selection": sel.to_dict(), "clearance_check": not args.no_clearance,
-            "wrist": regions.wrist_report(robot, q, _point(args.point)),
-            "tests": [cands[i].to_dict() for i in sel.indices]}  # fmt: skip
-    if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        header = f"# {args.tests} tests chosen by 'vtestbed poses design' ({args.criterion}-optimal, {args.method})\n"
-        name = f'name = "design_{args.criterion}_{args.tests}"\nrobot = "{robot.name}"\n\n'
-        toml = header + name + design.scenario_toml([cands[i] for i in sel.indices])
-        (Path(args.out) / "design_scenario.toml").write_text(toml)
-    _emit(args, data, "design.json")
     return 0
 
 
@@ -260,11 +215,11 @@ def register(sub) -> None:
         p.add_argument(
             "--min-height",
             type=number(-10, 10, "m"),
-            default=0.8,
-            help="lowest block z [m] (default %(default)s)",
+            help="lowest block z [m] (default: the robot's lab's block zone, 0.8 m for the KR60-3)",
         )
         p.add_argument(
-            "--box", default=DEFAULT_BOX, help="lab box xmin,ymin,zmin,xmax,ymax,zmax [m] ('' for none)"
+            "--box",
+            help="lab box xmin,ymin,zmin,xmax,ymax,zmax [m] ('' for none; default: the robot's lab's block zone)",
         )
         p.add_argument("--select", help="regions to draw from, e.g. Z1,Z4 (default: all usable)")
         p.add_argument("--n", type=integer(1, 10000), default=10, help="poses to draw (default %(default)s)")
@@ -308,40 +263,6 @@ def register(sub) -> None:
     lab_args(p)
     p.set_defaults(func=_cmd_regions)
 
-    p = cmds.add_parser("design", help="choose tests by D/A/E-optimality; predicted std of each k")
-    common(p)
-    lab_args(p)
-    p.add_argument(
-        "--poses", help="poses.json (from 'poses regions'); default: draw --n poses from the regions"
-    )
-    p.add_argument("--hooks", help="comma-separated hooks (default all)")
-    p.add_argument("--anchors", help="comma-separated rings (default all)")
-    p.add_argument(
-        "--tension",
-        type=number(0, 1e5, "N"),
-        default=DEFAULT_TENSION_N,
-        help="wire tension [N] (default %(default)s)",
-    )
-    p.add_argument(
-        "--tests", type=integer(1, 10000), default=10, help="tests to choose (default %(default)s)"
-    )
-    p.add_argument("--criterion", choices=design.CRITERIA, default="D")
-    p.add_argument("--no-clearance", action="store_true",
-                   help="skip the clearance check (docs/clearance.md; its link shells are the KR60's)")  # fmt: skip
-    p.add_argument("--method", choices=design.METHODS, default="exchange")
-    p.add_argument(
-        "--sigma-p",
-        type=number(0, 1, "m", low_open=True),
-        default=design.SIGMA_P,
-        help="displacement std [m]",
-    )
-    p.add_argument(
-        "--sigma-r",
-        type=number(0, 1, "rad", low_open=True),
-        default=design.SIGMA_R,
-        help="rotation std [rad]",
-    )
-    p.add_argument("--stiffness-prior", required=True, metavar="NAME|k1,..,k6",
-                   help=f"your stiffness guess: a named prior ({', '.join(NAMED_PRIORS)}; the paper's Table 5 is "
-                        "also this virtual lab's truth, so it flatters) or 6 values in N*mm/rad")  # fmt: skip
-    p.set_defaults(func=_cmd_design)
+    from .poses_design import add_design_parsers  # the experiment-design commands: design, next
+
+    add_design_parsers(cmds, common, lab_args)

@@ -7,7 +7,7 @@ import numpy as np
 from ..files import dumps
 from ..robots import DEFAULT_ROBOT, available_robots, load_robot
 from ..transforms import displacement
-from .args import add_load_arguments, add_pose_arguments, pose_from_args
+from .args import add_load_arguments, add_pose_arguments, load_tension, pose_from_args
 
 
 def _cmd_robot(args) -> int:
@@ -45,7 +45,8 @@ def _cmd_import(args) -> int:
             raise DescriptionError(
                 f"--stiffness-Nm-per-rad {args.stiffness!r} must be 6 comma-separated numbers [N*m/rad]"
             ) from None
-    imported = import_urdf(read_urdf(args.urdf), name, args.base, args.tip, stiffness, args.source or "")
+    imported = import_urdf(read_urdf(args.urdf), name, args.base, args.tip, stiffness, args.source or "",
+                           args.rated_payload_kg)  # fmt: skip
     directory = MODELS_DIR / name
     written = write_folder(imported, directory, force=args.force)
     load_robot.cache_clear()  # a re-import replaces a description this process may have read
@@ -57,14 +58,17 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_load(args) -> int:
+    from ..lab import lab_for_robot
     from ..world.rig import Rig
 
     robot = load_robot(args.robot)
-    rig = Rig(robot)
+    lab = lab_for_robot(robot)  # the robot's own lab: table, rings and tension limit fit it
+    tension = load_tension(args, lab)
+    rig = Rig(robot, lab)
     rig.command(pose_from_args(robot, args))
     rig.hook(args.hook, args.anchor)
     unloaded = rig.solve()
-    loaded = rig.tighten(args.tension)
+    loaded = rig.tighten(tension)
     disp = displacement(unloaded.block_pose, loaded.block_pose)
     result = {
         "q_cmd_deg": np.degrees(loaded.q_cmd).tolist(),
@@ -122,6 +126,8 @@ def register(sub) -> None:
         help="true joint stiffness [N*m/rad] (default: rated torque / 2.5 mrad, docs/robots.md)",
     )
     imp.add_argument("--source", help="where the URDF came from, for the README")
+    imp.add_argument("--rated-payload-kg", type=float, metavar="KG",
+                     help="the maker's rated payload [kg]: caps the wire tension (default: no cap from the robot)")  # fmt: skip
     imp.add_argument("--force", action="store_true", help="overwrite an existing models/NAME")
     imp.set_defaults(func=_cmd_import)
 

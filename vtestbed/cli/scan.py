@@ -8,12 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from ..files import dumps
-from ..lab import DEFAULT_SCANNER_DISTANCE_M
+from ..lab import lab_for_robot
 from ..robots import DEFAULT_ROBOT
 from .args import (
     SEED,
     add_load_arguments,
     add_pose_arguments,
+    load_tension,
     number,
     output_dir,
     parse_numbers,
@@ -34,7 +35,10 @@ def _cmd_scan(args) -> int:
     from ..world.scanner import Scanner
 
     robot = load_robot(args.robot)
-    rig = Rig(robot)
+    lab = lab_for_robot(robot)  # the robot's own lab: table, rings, tension and stand-off fit it
+    tension = load_tension(args, lab)
+    distance_m = lab.scanner_distance if args.distance_mm is None else args.distance_mm * 1e-3
+    rig = Rig(robot, lab)
     q_cmd = pose_from_args(robot, args)
     rig.command(q_cmd)
     rig.hook(args.hook, args.anchor)
@@ -47,12 +51,12 @@ def _cmd_scan(args) -> int:
     scanner = Scanner.place(
         rig.lab,
         s0.block_pose,
-        distance_m=args.distance_mm * 1e-3,
+        distance_m=distance_m,
         view_direction_block=parse_numbers(args.view, "--view", 3, "direction in the block frame"),
         point_spacing_m=args.spacing_mm * 1e-3,
     )
     cloud0 = scanner.scan(rig.model, rig.data, rng, noise)
-    s1 = rig.tighten(args.tension)
+    s1 = rig.tighten(tension)
     cloud1 = scanner.scan(rig.model, rig.data, rng, noise)
     ply.write_ply(out / "unloaded.ply", cloud0)
     ply.write_ply(out / "loaded.ply", cloud1)
@@ -105,7 +109,7 @@ def _cmd_scan(args) -> int:
     }
     (out / "scan.json").write_text(dumps(result, indent=2))
     print(
-        f"scanner {scanner.spec.name} at {args.distance_mm:g} mm, spacing {args.spacing_mm:g} mm, "
+        f"scanner {scanner.spec.name} at {distance_m * 1e3:g} mm, spacing {args.spacing_mm:g} mm, "
         f"{'noise-free' if args.noise_free else f'noise seed {args.seed}'}; clouds of {len(cloud0)} and "
         f"{len(cloud1)} points in {out}"
     )
@@ -129,8 +133,8 @@ def register(sub) -> None:
     p.add_argument(
         "--distance-mm",
         type=number(0, 1e4, "mm", low_open=True),
-        default=DEFAULT_SCANNER_DISTANCE_M * 1e3,
-        help="scanner to block centre (default %(default)s)",
+        default=None,
+        help="scanner to block centre (default: the robot's lab's stand-off, docs/lab.md: 600 mm for the KR60-3)",
     )
     p.add_argument(
         "--view",

@@ -2,7 +2,8 @@
 
 The same pairs and margins as the truth world (:mod:`vtestbed.clearance`, docs/clearance.md), on
 the commanded pose's nominal kinematics (Pinocchio) and the lab's nominal layout: the link shells
-from the DH frame origins, the sensor, stem and block on the flange, the table top and the floor,
+from the DH frame origins, the sensor, stem and block on the flange (a mesh target: its convex
+hull, :mod:`vtestbed.target_geometry`), the table top and the floor,
 the wire from the hook to the ring, and the scanner where the operator places it (0.6 m from the
 block centre along the block's (1, 1, 1) by default). The truth world sags under the load by
 well under a millimetre at the block, so a nominal pass within the margins is a truth pass.

@@ -13,7 +13,10 @@ The criteria use the information of the relative compliance errors, ``M_rel = S 
 
 * D-optimality: ``log det M_rel`` (maximise; independent of the prior),
 * A-optimality: ``trace(M_rel^-1) = sum_j (std(c_j)/c_j)^2`` (minimise),
-* E-optimality: ``lambda_min(M_rel)`` (maximise).
+* E-optimality: ``lambda_min(M_rel)`` (maximise),
+* minimax: ``max_j (M_rel^-1)_jj = max_j (std(k_j)/k_j)^2``, the worst joint's relative variance
+  (minimise; the default of ``vtestbed poses design``, its convex relaxation and lower bound are in
+  :mod:`vtestbed.design.minimax`).
 
 The candidates' wrenches come from the nominal geometry (the direction from the hook to the
 ring at the commanded pose), which a researcher can compute without the truth world.
@@ -37,7 +40,7 @@ from .clearance import NominalClearance
 # measured against the truth over 30 seeds x 8 tests (tests/test_design_optimal.py): 5.3 um, 8.5 urad.
 SIGMA_P = 5.3e-6  # m, translational displacement std per axis
 SIGMA_R = 8.5e-6  # rad, rotational displacement std per axis
-CRITERIA = ("D", "A", "E")
+CRITERIA = ("minimax", "D", "A", "E")
 METHODS = ("greedy", "exchange")
 
 
@@ -174,6 +177,19 @@ def information_matrix(tests, sigma_p: float = SIGMA_P, sigma_r: float = SIGMA_R
     return test_information(tests, sigma_p, sigma_r).sum(axis=0)
 
 
+def _base(base_information, n: int) -> np.ndarray:
+    m0 = np.asarray(base_information, dtype=float)
+    if (
+        m0.shape != (n, n)
+        or not np.all(np.isfinite(m0))
+        or np.linalg.eigvalsh((m0 + m0.T) / 2)[0] < -1e-9 * max(1.0, np.abs(m0).max())
+    ):
+        raise OutOfRangeError(
+            f"base_information must be a symmetric positive semi-definite ({n}, {n}) matrix"
+        )
+    return m0
+
+
 def _prior(stiffness_prior, n: int) -> np.ndarray:
     k = np.asarray(stiffness_prior, dtype=float)
     if k.shape != (n,) or not np.all(np.isfinite(k) & (k > 0)):
@@ -197,6 +213,13 @@ def _scores(m_rel: np.ndarray, criterion: str) -> np.ndarray:
             )
     if criterion == "E":
         return np.linalg.eigvalsh(m_rel)[..., 0]
+    if criterion == "minimax":
+        try:
+            return -np.diagonal(np.linalg.inv(m_rel), axis1=-2, axis2=-1).max(axis=-1)
+        except np.linalg.LinAlgError:
+            return np.array(
+                [-np.inf if np.linalg.cond(m) > 1e15 else -np.diag(np.linalg.inv(m)).max() for m in m_rel]
+            )
     raise UnknownNameError("design criterion", criterion, CRITERIA)
 
 
@@ -214,21 +237,34 @@ class DesignReport:
     a_value: float  # trace M_rel^-1
     e_value: float  # lambda_min(M_rel)
 
+    @property
+    def minimax_value(self) -> float:
+        """The worst joint's relative std ``max_j std(k_j)/k_j`` (the minimax criterion's square root)."""
+        return float(self.relative_std.max())
+
     def to_dict(self) -> dict:
         return {
             "n_tests": self.n_tests,
             "d_log_det_rel": self.d_value,
             "a_trace_rel_cov": self.a_value,
             "e_min_eig_rel": self.e_value,
+            "worst_relative_std_percent": self.minimax_value * 100,
             "compliance_std_rad_per_Nm": self.compliance_std.tolist(),
             "stiffness_std_Nmm_per_rad": (self.stiffness_std * 1e3).tolist(),
             "relative_std_percent": (self.relative_std * 100).tolist(),
         }
 
 
-def evaluate(tests, stiffness_prior, sigma_p: float = SIGMA_P, sigma_r: float = SIGMA_R) -> DesignReport:
-    """D, A, E values and the predicted std of each joint's stiffness for a set of tests."""
+def evaluate(
+    tests, stiffness_prior, sigma_p: float = SIGMA_P, sigma_r: float = SIGMA_R, base_information=None
+) -> DesignReport:
+    """D, A, E values and the predicted std of each joint's stiffness for a set of tests.
+
+    ``base_information`` (n, n) [(N*m/rad)^2]: the information ``M`` of tests already made, added.
+    """
     m = information_matrix(tests, sigma_p, sigma_r)
+    if base_information is not None:
+        m = m + _base(base_information, m.shape[0])
     k = _prior(stiffness_prior, m.shape[0])
     s = 1.0 / k
     m_rel = m * np.outer(s, s)
@@ -270,12 +306,15 @@ def select_tests(
     sigma_p: float = SIGMA_P,
     sigma_r: float = SIGMA_R,
     max_passes: int = 20,
+    base_information=None,
 ) -> Selection:
     """Pick ``n`` distinct tests from ``candidates`` by greedy addition, then exchange (Fedorov).
 
     Greedy adds the candidate that improves the criterion most (a tiny ridge makes the first
     steps well defined); the exchange phase swaps a chosen test for an unchosen one while that
-    improves the criterion. Deterministic: ties go to the lowest index.
+    improves the criterion. Deterministic: ties go to the lowest index. ``base_information``
+    (n, n) [(N*m/rad)^2]: the information of tests already made (sequential design); the criterion
+    is then that of the old and the new tests together.
     """
     if criterion not in CRITERIA:
         raise UnknownNameError("design criterion", criterion, CRITERIA)
@@ -288,6 +327,8 @@ def select_tests(
     s = 1.0 / _prior(stiffness_prior, n_par)
     info = info * np.outer(s, s)
     ridge = 1e-9 * np.trace(info.mean(axis=0)) / n_par * np.eye(n_par)
+    if base_information is not None:  # tests already made (sequential design)
+        ridge = ridge + _base(base_information, n_par) * np.outer(s, s)
     chosen: list[int] = []
     total = ridge.copy()
     for _ in range(n):
@@ -313,7 +354,7 @@ def select_tests(
             if not improved:
                 break
     tests = _a_stack(candidates)[chosen]
-    report = evaluate(tests, 1.0 / s, sigma_p, sigma_r)
+    report = evaluate(tests, 1.0 / s, sigma_p, sigma_r, base_information)
     return Selection(tuple(chosen), criterion, method, report, swaps)
 
 

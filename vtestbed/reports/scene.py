@@ -6,7 +6,8 @@ commanded pose, the block at the frame fitted to the unloaded scan, the fitted f
 scans, the clouds (subsampled) moved into the base frame with the recorded scanner pose, and the
 wire along the measured force change. The wire's hook is the block hook whose moment about the
 block origin best matches the measured torque change, and the wire is drawn down to the table
-height of the paper's lab (the dataset records neither the hook nor the ring).
+height of the robot's default lab (:func:`vtestbed.lab.lab_for_robot`; the dataset records neither
+the hook nor the ring).
 Lengths in the figure are metres, in the robot base frame.
 """
 
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import read_setup, read_tests
-from ..lab import PAPER_LAB
+from ..lab import lab_for_robot
 from ..ply import read_ply
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import measure_arrays
@@ -55,15 +56,15 @@ def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:
     return points[np.sort(np.random.default_rng(seed).choice(len(points), n, replace=False))]
 
 
-def _wire(block_pose: np.ndarray, force_b: np.ndarray, torque_b: np.ndarray) -> tuple[str, np.ndarray]:
+def _wire(block_pose: np.ndarray, force_b: np.ndarray, torque_b: np.ndarray, lab) -> tuple[str, np.ndarray]:
     """The hook that explains the measured torque best and the wire's end points (2, 3) [m]."""
-    hooks = PAPER_LAB.block.hooks
+    hooks = lab.block.hooks
     name = min(hooks, key=lambda h: np.linalg.norm(torque_b - np.cross(np.array(hooks[h]), force_b)))
     start = block_pose[:3, :3] @ np.array(hooks[name]) + block_pose[:3, 3]
     direction = block_pose[:3, :3] @ force_b / max(np.linalg.norm(force_b), 1e-12)
     length = WIRE_DEFAULT_M
     if direction[2] < -1e-3:  # pulls downward: to the table top
-        length = (PAPER_LAB.table.height - start[2]) / direction[2]
+        length = (lab.table.height - start[2]) / direction[2]
     return name, np.array([start, start + length * direction])
 
 
@@ -114,7 +115,7 @@ def one_test_scene(dataset: str | Path, test_id: str | None = None, max_points: 
     fig.add_trace(go.Mesh3d(x=verts[:, 0], y=verts[:, 1], z=verts[:, 2], i=i, j=j, k=k, opacity=0.35,
                             color="#8c8c8c", name="block (fitted, unloaded)", showlegend=True))  # fmt: skip
     block_b_force = m.wrench[:3]
-    hook, wire = _wire(frames[0], block_b_force, m.wrench[3:])
+    hook, wire = _wire(frames[0], block_b_force, m.wrench[3:], lab_for_robot(kin.robot))
     fig.add_trace(go.Scatter3d(x=wire[:, 0], y=wire[:, 1], z=wire[:, 2], mode="lines", name=f"wire ({hook}, measured force)",
                                line={"width": 4, "color": "#c00000"}))  # fmt: skip
     shown = []

@@ -35,13 +35,20 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import OutOfRangeError, ScanError, check_range
-from ..transforms import displacement, invert, rotation_vector
+from ..transforms import rotation_vector
+from .cloud_displacement import block_displacement, displacement_in_scanner, paper_displacement
 from .cloud_ransac import coarse_pose, ransac_plane, ransac_seeds
+
+__all__ = ["BlockFrame", "FitParams", "block_displacement", "displacement_in_scanner", "fit_block_frame",
+           "fit_plane", "paper_displacement"]  # fmt: skip
 
 FACES = ("+x", "+y", "+z")
 # The face a point belongs to from the bit code (on +x) + 2 (on +y) + 4 (on +z): one plane or none (3).
 _OWNER = np.array([3, 0, 1, 3, 2, 3, 3, 3], dtype=np.int8)
 FIT_METHODS = ("auto", "fast", "ransac")
+# FitParams.edge_band_m for targets with chamfered or rounded edges: wider than the gate (4.5 sigma,
+# about 0.06 mm at 45 deg) over which chamfer points reach into it; measured in docs/targets.md.
+CHAMFER_EDGE_BAND_M = 0.5e-3
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,12 @@ class FitParams:
         nominal pose; a nominal pose further off may have seeded the faces wrongly.
     min_face_points : int
         Fewest points a face must keep.
+    edge_band_m : float
+        Targets whose faces end in chamfers or rounded edges (a mesh target's ``face_margin_m`` > 0
+        in setup.json): each face's points within this distance [m] of the boundary of its flat
+        region (as its points, in the fitted frame, show it) are dropped and the faces refitted, so
+        that the chamfer points that lie within the gate do not tilt or shift the plane. 0 (the
+        plain box): no band is dropped.
     min_extent_fraction : float
         Each face's points must span this fraction of the edge along both in-plane axes.
     angle_tolerance_deg, max_skew_deg : float
@@ -101,6 +114,7 @@ class FitParams:
     fast_max_angle_deg: float = 3.0
     fast_max_offset_m: float = 8e-3
     min_face_points: int = 100
+    edge_band_m: float = 0.0
     min_extent_fraction: float = 0.5
     angle_tolerance_deg: float = 10.0
     max_skew_deg: float = 1.0
@@ -120,6 +134,7 @@ class FitParams:
         check_range("fast_max_angle_deg", self.fast_max_angle_deg, 0.0, 45.0, "deg")
         check_range("fast_max_offset_m", self.fast_max_offset_m, 0.0, self.edge_m, "m")
         check_range("min_face_points", self.min_face_points, 3, 1e9)
+        check_range("edge_band_m", self.edge_band_m, 0.0, self.edge_m / 8, "m")
         check_range("min_extent_fraction", self.min_extent_fraction, 0.0, 1.0)
 
 
@@ -236,6 +251,15 @@ def _fit_face(
     return normal, offset, threshold
 
 
+def _frame(normals: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(4, 4) block frame from the fitted planes (offsets about ``origin`` (3, 1)), in the cloud's frame."""
+    u, _, vt = np.linalg.svd(normals.T)
+    pose = np.eye(4)
+    pose[:3, :3] = u @ vt  # nearest rotation to [n_x n_y n_z]; det > 0 since all are near the nominal
+    pose[:3, 3] = np.linalg.solve(normals, offsets) + origin[:, 0]  # where the three planes meet
+    return pose
+
+
 def _fit(p: np.ndarray, nom: np.ndarray, params: FitParams, ransac: bool, rng) -> BlockFrame:
     """One path of :func:`fit_block_frame` on the points as columns (3, N) [m]."""
     e, m, n_input = params.edge_m, params.crop_margin_m, p.shape[1]
@@ -317,10 +341,25 @@ def _fit(p: np.ndarray, nom: np.ndarray, params: FitParams, ransac: bool, rng) -
             f"the three fitted faces are not mutually perpendicular: off by {np.degrees(skew):.2f} deg "
             f"(> max_skew_deg = {params.max_skew_deg:g}); segmentation picked clutter"
         )
-    u, _, vt = np.linalg.svd(normals.T)
-    pose = np.eye(4)
-    pose[:3, :3] = u @ vt  # nearest rotation to [n_x n_y n_z]; det > 0 since all are near the nominal
-    pose[:3, 3] = np.linalg.solve(normals, offsets) + origin[:, 0]  # where the three planes meet
+    pose = _frame(normals, offsets, origin)
+    if params.edge_band_m > 0:  # chamfers: drop each face's boundary band, in the fitted frame
+        for k in range(3):
+            face = np.compress(owner == k, p, axis=1)
+            face -= origin
+            local = pose[:3, :3].T @ (face - (pose[:3, 3] - origin[:, 0])[:, None])
+            keep = np.ones(face.shape[1], dtype=bool)
+            for j in (j for j in range(3) if j != k):
+                lo, hi = local[j].min(), local[j].max()
+                keep &= (local[j] > lo + params.edge_band_m) & (local[j] < hi - params.edge_band_m)
+            face = np.compress(keep, face, axis=1)
+            if face.shape[1] < params.min_face_points:
+                raise ScanError(f"face {FACES[k]} keeps only {face.shape[1]} points inside edge_band_m = "
+                                f"{params.edge_band_m * 1e3:g} mm of its boundary (need {params.min_face_points})")  # fmt: skip
+            normal, centroid = fit_plane(face)
+            normals[k] = normal if normal @ normals[k] > 0 else -normal
+            offsets[k] = normals[k] @ centroid
+            counts[k], rms[k] = face.shape[1], np.sqrt(np.mean((normals[k] @ face - offsets[k]) ** 2))
+        pose = _frame(normals, offsets, origin)
     offsets += normals @ origin[:, 0]  # back to the cloud's frame
     if not ransac:
         # Seeds from a nominal pose far off may have named or mixed the faces wrongly.
@@ -390,34 +429,3 @@ def fit_block_frame(
         off = np.degrees(np.linalg.norm(rotation_vector(nom[:3, :3].T @ frame.pose[:3, :3])))
         reason += f"; the faces found by a RANSAC search, {off:.1f} deg from the nominal pose"
     return replace(frame, fallback_reason=reason)
-
-
-# ---------------------------------------------------------------------- displacement
-def displacement_in_scanner(frame0, frame1) -> np.ndarray:
-    """(6,) block displacement [o1 - o0 (m), rotvec(R1 R0^T) (rad)] in the scanner frame."""
-    return displacement(_as_pose(frame0, "frame0"), _as_pose(frame1, "frame1"))
-
-
-def block_displacement(frame0, frame1, scanner_pose) -> np.ndarray:
-    """(6,) block displacement in the robot base frame: translation of B's origin [m], rotation vector [rad].
-
-    ``scanner_pose`` (4, 4) is the scanner's pose in the base frame (scanner-to-robot calibration).
-    """
-    s = _as_pose(scanner_pose, "scanner_pose")
-    return displacement(s @ _as_pose(frame0, "frame0"), s @ _as_pose(frame1, "frame1"))
-
-
-def paper_displacement(frame0, frame1) -> np.ndarray:
-    """(6,) the paper's form [dx, dy, dz (m), gamma, beta, alpha (rad)] of T = O1 O0^-1 (scanner frame).
-
-    R = Rz(alpha) Ry(beta) Rx(gamma) (X-Y-Z fixed angles; the extracted paper text lost the minus
-    sign of beta = atan2(-r31, sqrt(r11^2 + r21^2))). The translation is o1 - R o0: the motion of
-    the scanner frame's origin, not of the block. For comparison only.
-    """
-    t = _as_pose(frame1, "frame1") @ invert(_as_pose(frame0, "frame0"))
-    r = t[:3, :3]
-    beta = np.arctan2(-r[2, 0], np.hypot(r[0, 0], r[1, 0]))
-    cb = np.cos(beta)
-    alpha = np.arctan2(r[1, 0] / cb, r[0, 0] / cb)
-    gamma = np.arctan2(r[2, 1] / cb, r[2, 2] / cb)
-    return np.concatenate([t[:3, 3], [gamma, beta, alpha]])

@@ -119,8 +119,10 @@ def _solve_weighted(aw: np.ndarray, dw: np.ndarray):
     return c, cov
 
 
-def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench):
-    """Validate the inputs once; returns the stacked A (6 T, n), d (T, 6) and the joint names."""
+def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench, test_ids=None):
+    """Validate the inputs once; returns the stacked A (6 T, n), d (T, 6) and the joint names.
+
+    Errors name the tests by ``test_ids`` (T,) when given, else by their 0-based position."""
     if method not in METHODS:
         raise UnknownNameError("identification method", method, METHODS)
     d = np.asarray(displacements, dtype=float)
@@ -132,10 +134,11 @@ def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench
         raise OutOfRangeError(f"displacements must have shape ({n_tests}, 6), got {d.shape}")
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(d))):
         raise OutOfRangeError("jacobians, wrenches and displacements must be finite")
+    label = (lambda i: str(test_ids[i])) if test_ids is not None else (lambda i: f"{i} (0-based)")
     slack = np.flatnonzero(np.linalg.norm(wrenches[:, :3], axis=1) < min_wrench)
     if slack.size:
         raise SlackWireError(
-            f"tests {slack.tolist()} have a force change below {min_wrench:g} N: the wire was slack "
+            f"tests {', '.join(label(i) for i in slack)} have a force change below {min_wrench:g} N: the wire was slack "
             "(no load); tighten it or drop those tests"
         )
     if 6 * n_tests < n:
@@ -147,7 +150,7 @@ def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench
     if singular.size:
         t = singular[0]
         raise SingularPoseError(
-            f"test {t}: the Jacobian is singular (sigma_min/sigma_max = {s[t, -1] / s[t, 0]:.1e})"
+            f"test {label(t)}: the Jacobian is singular (sigma_min/sigma_max = {s[t, -1] / s[t, 0]:.1e})"
         )
     return a, d, names
 
@@ -179,6 +182,7 @@ def identify(
     joint_names: tuple[str, ...] | None = None,
     min_wrench: float = 1.0,
     iterations: int = 5,
+    test_ids: tuple[str, ...] | None = None,
 ) -> IdentificationResult:
     """Identify joint compliances from T tests.
 
@@ -191,13 +195,15 @@ def identify(
     displacement_cov : (T, 6, 6) or (6, 6), required for ``"wls"`` [m^2, m*rad, rad^2]
     min_wrench : float
         A test whose force change is below this [N] has a slack wire and is refused.
+    test_ids : (T,) str, optional
+        The tests' names for error messages (else their 0-based position).
 
     Notes
     -----
     Time and memory are linear in T: the whitening is applied per test, and the jackknife
     refits work on per-component normal equations (see :func:`_jackknife_cov`).
     """
-    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench)
+    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench, test_ids)
     whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
     result = _fit(a, d, method, names, whiten, iterations)
     for note in result.warnings:
@@ -215,6 +221,7 @@ def identify_prefixes(
     joint_names: tuple[str, ...] | None = None,
     min_wrench: float = 1.0,
     iterations: int = 5,
+    test_ids: tuple[str, ...] | None = None,
 ) -> list[IdentificationResult]:
     """:func:`identify` on the first n tests, for n = 1..T (a convergence study).
 
@@ -223,7 +230,7 @@ def identify_prefixes(
     O(n), so the study costs O(T^2). Result ``n - 1`` equals ``identify`` on the first n tests
     (the same arithmetic); its notes are in its ``warnings`` field, not emitted as warnings.
     """
-    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench)
+    a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench, test_ids)
     whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
     return [
         _fit(a[: 6 * n], d[:n], method, names, None if whiten is None else whiten[:n], iterations)

@@ -86,7 +86,10 @@ def fit_scan_frame(points: np.ndarray, nominal, setup: DatasetSetup, label: str)
     (e.g. ``test T001, unloaded cloud``).
     """
     try:
-        return cloud.fit_block_frame(points, nominal, cloud.FitParams(edge_m=setup.block_edge))
+        band = cloud.CHAMFER_EDGE_BAND_M if setup.block_face_margin > 0 else 0.0  # a chamfered target
+        return cloud.fit_block_frame(
+            points, nominal, cloud.FitParams(edge_m=setup.block_edge, edge_band_m=band)
+        )
     except VtestbedError as exc:
         raise ScanError(f"{label}: {exc}") from None
 
@@ -174,7 +177,8 @@ def identify_measurements(
     tests = [m for m in measurements if m.group == "identification"]
     if not tests:
         raise DatasetError("the dataset has no test in group 'identification'")
-    result = identify(*stacked(tests), method=method, joint_names=joint_names)
+    ids = tuple(m.test_id for m in tests)
+    result = identify(*stacked(tests), method=method, joint_names=joint_names, test_ids=ids)
     notes = []
     still = motionless_tests(tests, result.compliance)
     if still:

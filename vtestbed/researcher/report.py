@@ -39,7 +39,9 @@ def convergence(measurements: list[TestMeasurement], method: str, joint_names) -
         return rows
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # small-n fits are expected to be ill-conditioned
-        fits = identify_prefixes(*stacked(tests), method=method, joint_names=joint_names)
+        fits = identify_prefixes(
+            *stacked(tests), method=method, joint_names=joint_names, test_ids=tuple(m.test_id for m in tests)
+        )
     for n, res in enumerate(fits, start=1):
         rows["n"].append(n)
         rows["stiffness"].append(res.stiffness.tolist())

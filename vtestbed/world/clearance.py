@@ -6,10 +6,13 @@ sensor, stem and block against the table top and the floor; the wire's stand-in 
 the base, the links, the sensor and the stem) use MuJoCo's own collision distance
 (``mj_geomDistance``) on the scene's geoms; the wire against the block's edges and the scanner's
 sight lines use the shared segment geometry on shapes read from the same geoms, so they follow
-the true (sagged, possibly offset) poses.
+the true (sagged, possibly offset) poses; a mesh target is the convex hull of the mesh geom's
+vertices (:mod:`vtestbed.target_geometry`).
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import mujoco
 import numpy as np
@@ -27,6 +30,7 @@ from ..clearance import (
     sight_clearances,
     wire_clearances,
 )
+from ..target_geometry import Polytope
 from . import mjcf
 from .rig import Rig, RigState
 
@@ -53,7 +57,11 @@ def scene_geoms(model: mujoco.MjModel) -> dict[str, int]:
 
 
 def geom_shape(model: mujoco.MjModel, data: mujoco.MjData, geom: int, name: str):
-    """The shared-geometry shape of a capsule, sphere, cylinder or box geom at its current pose."""
+    """The shared-geometry shape of a capsule, sphere, cylinder, box or mesh geom at its current pose.
+
+    A mesh is the convex hull of MuJoCo's own (float32) vertices, the body its collision
+    functions (``mj_geomDistance``) use: a :class:`~vtestbed.target_geometry.Polytope`.
+    """
     pos, rot, size = (
         data.geom_xpos[geom].copy(),
         data.geom_xmat[geom].reshape(3, 3).copy(),
@@ -68,7 +76,20 @@ def geom_shape(model: mujoco.MjModel, data: mujoco.MjData, geom: int, name: str)
         return Cylinder(name, pos, rot[:, 2], float(size[0]), float(size[1]))
     if kind == mujoco.mjtGeom.mjGEOM_BOX:
         return Box(name, pos, rot, size[:3].copy())
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:  # a mesh target: its convex hull (docs/clearance.md)
+        mesh = model.geom_dataid[geom]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        local = _hull(model.mesh_vert[start : start + count].astype(float).tobytes())
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rot, pos
+        return local.moved(pose, name)
     raise ValueError(f"geom {name!r}: type {kind} has no clearance shape")  # the scene has none
+
+
+@lru_cache(maxsize=8)
+def _hull(vertices: bytes) -> Polytope:
+    """The convex hull of a mesh's vertices (float64 bytes, the geom's frame), cached per mesh."""
+    return Polytope.from_points(np.frombuffer(vertices).reshape(-1, 3))
 
 
 def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, g1: int, g2: int) -> float:

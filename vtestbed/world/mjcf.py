@@ -34,6 +34,8 @@ from .truth import RobotTruth, load_truth
 FLANGE_SITE = "flange"
 SENSOR_SITE = "ft_sensor"
 BLOCK_SITE = "block"
+BLOCK_GEOM = "target_block"
+BLOCK_MESH = "target_block_mesh"
 WIRE_TENDON = "wire"
 WIRE_HOOK_SITE = "wire_hook"
 WIRE_ANCHOR_SITE = "wire_anchor"
@@ -153,7 +155,31 @@ def build_robot_spec(robot: RobotDescription, truth: RobotTruth) -> mujoco.MjSpe
     return spec
 
 
-def _add_tool(last_link: mujoco.MjsBody, flange: np.ndarray, lab: LabSetup) -> None:
+def _add_mesh_block(spec: mujoco.MjSpec, tool: mujoco.MjsBody, block, block_in_tool: np.ndarray):
+    """A mesh target (:class:`vtestbed.target_mesh.MeshTarget`) as a mesh geom of ``tool``.
+
+    Its vertices are given about the centre of the bounding cube (B's origin minus edge/2 on each
+    axis), the frame the box geom has, so that what moves the box (the mounting effect) moves the
+    mesh alike. MuJoCo computes the inertia from the closed surface (``exact``) for the geom's
+    mass, which equals trimesh's mass properties (tests/test_target_mesh.py). Its vertices are
+    float32: ray hits are off the ideal surface by up to about 5e-9 m.
+    """
+    half = block.edge / 2
+    mesh = spec.add_mesh(name=BLOCK_MESH)
+    mesh.uservert = (block.mesh.vertices + half).ravel().tolist()
+    mesh.userface = block.mesh.faces.ravel().tolist()
+    mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_EXACT
+    return _visual_geom(
+        tool,
+        name=BLOCK_GEOM,
+        type=mujoco.mjtGeom.mjGEOM_MESH,
+        meshname=BLOCK_MESH,
+        pos=block_in_tool - half,
+        rgba=[0.75, 0.78, 0.85, 1.0],
+    )
+
+
+def _add_tool(spec: mujoco.MjSpec, last_link: mujoco.MjsBody, flange: np.ndarray, lab: LabSetup) -> None:
     """The sensor and the block on the last link, at the flange pose ``flange`` (4, 4) in it."""
     sensor, block = lab.sensor, lab.block
     mount = last_link.add_body(name="ft_mount", pos=flange[:3, 3], quat=quat_wxyz(flange[:3, :3]))
@@ -185,14 +211,17 @@ def _add_tool(last_link: mujoco.MjsBody, flange: np.ndarray, lab: LabSetup) -> N
     )
     stem.mass = block.stem_mass
     block_in_tool = lab.block_in_flange[:3, 3] - sensor.origin_in_flange
-    cube = _visual_geom(
-        tool,
-        name="target_block",
-        type=mujoco.mjtGeom.mjGEOM_BOX,  # a primitive box: ray hits exact to 1e-15 m
-        size=[block.edge / 2] * 3,
-        pos=block_in_tool - block.edge / 2,
-        rgba=[0.75, 0.78, 0.85, 1.0],
-    )
+    if block.mesh is None:
+        cube = _visual_geom(
+            tool,
+            name=BLOCK_GEOM,
+            type=mujoco.mjtGeom.mjGEOM_BOX,  # a primitive box: ray hits exact to 1e-15 m
+            size=[block.edge / 2] * 3,
+            pos=block_in_tool - block.edge / 2,
+            rgba=[0.75, 0.78, 0.85, 1.0],
+        )
+    else:
+        cube = _add_mesh_block(spec, tool, block, block_in_tool)
     cube.mass = block.mass
     tool.add_site(name=BLOCK_SITE, pos=block_in_tool, size=[0.004, 0.0, 0.0], group=MARKER_GROUP)
     default_hook = next(iter(block.hooks))
@@ -252,7 +281,7 @@ def build_scene_spec(
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # a statics rig: no contacts
     effects = tuple(e for e in effects if not e.is_null)
     last_link = _add_robot(spec, robot, truth, tuple(h for e in effects for h in e.hinges(robot)))
-    _add_tool(last_link, robot.flange_transform, lab)
+    _add_tool(spec, last_link, robot.flange_transform, lab)
     _add_table_and_wire(spec, lab)
     for kind, suffix in (
         (mujoco.mjtSensor.mjSENS_FORCE, "force"),

@@ -27,10 +27,9 @@ import numpy as np
 from ..errors import OutOfRangeError, ScanError, check_range
 from ..lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, ScannerSpec
 from ..transforms import homogeneous
-from .mjcf import SCANNABLE_GROUP
+from .mjcf import BLOCK_GEOM, BLOCK_SITE, SCANNABLE_GROUP
 from .scan_noise import ScanGeometry, ScanNoise
 
-BLOCK_GEOM = "target_block"
 FACE_LABELS = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
@@ -263,17 +262,28 @@ class Scanner:
 
         Returns the noise-free hits inside the measuring volume, in the scanner frame. Raises
         :class:`ScanError` when the block is not wholly inside the measuring volume (scan window
-        included) or fewer than three of its faces return ``min_face_points`` points.
+        included) or fewer than three of its faces return ``min_face_points`` points. The block's
+        extent is its box's corners or its mesh's vertices; its faces are those of the block frame
+        B (the ``block`` site; without one, the geom's frame).
         """
         try:
             block_id = model.geom(self.block_geom).id
         except KeyError:
             raise ScanError(f"the scene has no geom named {self.block_geom!r} (scanner block_geom)") from None
         rot_g = data.geom_xmat[block_id].reshape(3, 3)
-        half = model.geom_size[block_id]
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-        corners_w = data.geom_xpos[block_id] + (signs * half) @ rot_g.T
+        mesh = model.geom_dataid[block_id] if model.geom_type[block_id] == mujoco.mjtGeom.mjGEOM_MESH else -1
+        if mesh >= 0:  # a mesh target: its vertices (geom frame), the exact hull of what is cast
+            start = model.mesh_vertadr[mesh]
+            local = model.mesh_vert[start : start + model.mesh_vertnum[mesh]].astype(float)
+        else:
+            signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+            local = signs * model.geom_size[block_id]
+        corners_w = data.geom_xpos[block_id] + local @ rot_g.T
         self.check_in_volume(self.to_scanner(corners_w), "block")
+        try:  # the faces are the block frame B's (a mesh geom's own frame is its principal axes)
+            rot_g = data.site_xmat[model.site(BLOCK_SITE).id].reshape(3, 3)
+        except KeyError:
+            pass
 
         rays = self._world_rays
         n = rays.size // 3
@@ -304,8 +314,10 @@ class Scanner:
         mask = hits.geom_ids == block_id
         local = hits.normals[mask] @ self.pose_world[:3, :3].T @ rot_g  # normals in the geom frame
         axis = np.argmax(np.abs(local), axis=1)
-        face = 2 * axis + (local[np.arange(len(axis)), axis] < 0)
-        counts = np.bincount(face, minlength=6)
+        along = local[np.arange(len(axis)), axis]
+        face = 2 * axis + (along < 0)
+        # only hits on a face, within 10 deg of its axis (a chamfer's are not)
+        counts = np.bincount(face[np.abs(along) > np.cos(np.radians(10.0))], minlength=6)
         seen = [f"{FACE_LABELS[i]}: {counts[i]}" for i in range(6) if counts[i] > 0]
         if np.sum(counts >= min_points) < 3:
             raise ScanError(

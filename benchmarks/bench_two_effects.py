@@ -1,0 +1,112 @@
+"""Two hidden effects at once: does `vtestbed diagnose` name both? (issue target: >= 90 %).
+
+Worlds: ``scenarios/kr60_paper.toml`` with two effects hidden together, each at its realistic
+default (docs/effects.md), for the pairs of the effects the workflow detects alone at that size
+(docs/discrepancy_benchmark.md). Every trial is exactly a trial of
+``benchmarks/bench_discrepancy.py`` (same noise draws, 3 repeat scans per test, exact statics,
+alpha 0.01, forward naming until nothing is significant). Prints per pair: both named, one named,
+a wrong name among those named, nothing, with 95 % Clopper-Pearson intervals.
+
+    .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import sys
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_discrepancy as bench  # noqa: E402  (sets the BLAS threads to 1 before numpy)
+
+from vtestbed.world.effects import EFFECTS  # noqa: E402
+
+PAIRS = (
+    "link_compliance+joint_coupling",
+    "link_compliance+ft_misalignment",
+    "joint_coupling+ft_misalignment",
+    "link_compliance+nonlinear_joint",
+)
+
+
+def tally(pair: str, records: list[dict]) -> dict:
+    expected = {bench.expected_label(EFFECTS[n]()) for n in pair.split("+")}
+    out = {"both": 0, "one": 0, "wrong": 0, "nothing": 0, "error": 0, "extra": Counter()}
+    for r in records:
+        if "error" in r:
+            out["error"] += 1
+            continue
+        named = set(r["named"])
+        hit = len(named & expected)
+        out["both"] += hit == 2
+        out["one"] += hit == 1
+        out["nothing"] += not named
+        out["wrong"] += bool(named - expected)
+        out["extra"].update(named - expected)
+    return out
+
+
+def clopper_pearson(k: int, n: int) -> tuple[float, float]:
+    """95 % interval of a binomial rate with k of n."""
+    from scipy.stats import beta
+
+    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
+    hi = 1.0 if k >= n else float(beta.ppf(0.975, k + 1, n - k))
+    return lo, hi
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=50)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--pairs", default=",".join(PAIRS), help="comma-separated a+b effect pairs")
+    args = parser.parse_args()
+    pairs = [p.strip() for p in args.pairs.split(",") if p.strip()]
+    for pair in pairs:
+        bad = [n for n in pair.split("+") if n not in EFFECTS] or ([] if pair.count("+") == 1 else [pair])
+        if bad:
+            parser.error(
+                f"--pairs: {bad[0]!r} is not a pair of effects a+b; valid effects: {', '.join(EFFECTS)}"
+            )
+    seeds = [bench.SEED0 + k for k in range(args.seeds)]
+    t0 = time.perf_counter()
+    results: dict[str, list[dict]] = {p: [] for p in pairs}
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx) as pool:
+        futures = {
+            pool.submit(bench.run_chunk, pair, 1.0, seeds[i : i + bench.CHUNK], "exact"): pair
+            for pair in pairs
+            for i in range(0, len(seeds), bench.CHUNK)
+        }
+        for fut in as_completed(futures):
+            results[futures[fut]].extend(fut.result()[0])
+            done = sum(map(len, results.values()))
+            print(
+                f"{done}/{len(pairs) * len(seeds)} trials, {time.perf_counter() - t0:.0f} s", file=sys.stderr
+            )
+    wall = time.perf_counter() - t0
+    print(f"# bench_two_effects: {bench.SCENARIO.name}, {args.seeds} seeds per world (seed {bench.SEED0}+k), "
+          f"realistic sizes, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
+    print(
+        "| hidden pair | n | both named [95 % CI] | one named | a third name too | nothing | errors | third names (count) |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |")
+    for pair in pairs:
+        t, n = tally(pair, results[pair]), len(results[pair])
+        lo, hi = clopper_pearson(t["both"], n)
+        print(f"| {pair.replace('+', ' + ')} | {n} | {100 * t['both'] / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] "
+              f"| {t['one']} | {t['wrong']} | {t['nothing']} | {t['error']} "
+              f"| {', '.join(f'{k} ({v})' for k, v in t['extra'].most_common(3))} |")  # fmt: skip
+    for pair in pairs:
+        for r in results[pair]:
+            if "error" in r:
+                print(f"error in {pair} seed {r['seed']}: {r['error']}", file=sys.stderr)
+                break
+
+
+if __name__ == "__main__":
+    main()

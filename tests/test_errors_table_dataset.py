@@ -1,0 +1,212 @@
+"""docs/errors.md, dataset and result-folder rows: each bad file made for real (an edit of a small
+written dataset, or of a sweep folder's files) and read by the library's one reader per kind."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from errors_table import Ctx, cli, refused, run_row, section_rows
+from test_dataset import _edit_setup, _edit_tests, _records, _setup, _write
+
+from vtestbed.comparison import read_truth
+from vtestbed.dataset import read_repeats, read_setup, read_tests, write_setup
+from vtestbed.errors import DatasetError
+from vtestbed.lab import LabSetup
+
+ROWS = section_rows("Dataset files (`DatasetError`, `vtestbed/dataset_checks.py`)", "Result folders")
+RANGE = (300.0, 300.0, 900.0, 25.0, 25.0, 25.0)  # the written dataset's force sensor range
+
+
+def _dataset(ctx: Ctx):
+    """A small written dataset (4 tests, empty cloud files): ``ctx.tmp/ds``."""
+    root = ctx.tmp / "ds"
+    root.mkdir(exist_ok=True)
+    write_setup(root, _setup(LabSetup()))
+    _write(root, _records(root))
+    return root
+
+
+def setup_error(**changes):
+    def case(ctx):
+        root = _dataset(ctx)
+        _edit_setup(root, **changes)
+        return refused(lambda: read_setup(root), DatasetError)
+
+    return case
+
+
+def setup_text(data: bytes | None):
+    def case(ctx):
+        root = _dataset(ctx)
+        if data is None:
+            (root / "setup.json").unlink()
+        else:
+            (root / "setup.json").write_bytes(data)
+        return refused(lambda: read_setup(root), DatasetError)
+
+    return case
+
+
+def row_error(index, check_files=False, sensor_range=None, **values):
+    def case(ctx):
+        root = _dataset(ctx)
+        _edit_tests(root, lambda rows: rows[index].update(values))
+        return refused(lambda: read_tests(root, check_files, sensor_range), DatasetError)
+
+    return case
+
+
+def csv_lines(edit):
+    def case(ctx):
+        root = _dataset(ctx)
+        path = root / "tests.csv"
+        path.write_bytes(edit(path.read_text().splitlines()))
+        return refused(lambda: read_tests(root, check_files=False), DatasetError)
+
+    return case
+
+
+def _cut_last_field(lines):
+    return ("\n".join([*lines[:2], lines[2].rsplit(",", 1)[0], *lines[3:]]) + "\n").encode()
+
+
+def _missing_cloud(ctx):
+    root = _dataset(ctx)
+    (root / "clouds" / "T1_l.ply").unlink()
+    return refused(lambda: read_tests(root), DatasetError)
+
+
+def _missing_tests(ctx):
+    root = _dataset(ctx)
+    (root / "tests.csv").unlink()
+    return refused(lambda: read_tests(root), DatasetError)
+
+
+def _repeats(text):
+    def case(ctx):
+        root = _dataset(ctx)
+        (root / "repeats.csv").write_text(text)
+        return refused(lambda: read_repeats(root, check_files=False), DatasetError)
+
+    return case
+
+
+def _truth(text):
+    def case(ctx):
+        (ctx.tmp / "truth.json").write_text(text)
+        return refused(lambda: read_truth(ctx.tmp), DatasetError)
+
+    return case
+
+
+def _sweep_folder(ctx, part: bytes | None = None, manifest: str | None = None):
+    """A results folder holding a campaign.json and one trials part (no sweep run)."""
+    out = ctx.tmp / "sweep"
+    (out / "trials").mkdir(parents=True)
+    if part is not None:
+        (out / "trials" / "part-0000.parquet").write_bytes(part)
+    if manifest is not None:
+        (out / "campaign.json").write_text(manifest)
+    return out
+
+
+def _parquet_part(ctx):
+    from vtestbed.campaigns.store import SweepError, read_results
+
+    good = ctx.tmp / "good.parquet"
+    pd.DataFrame({"trial_key": ["a"], "x": [1.0]}).to_parquet(good)
+    out = _sweep_folder(ctx, part=good.read_bytes()[:100])  # truncated
+    return refused(lambda: read_results(out), SweepError)
+
+
+def _foreign_part(ctx):
+    from vtestbed.campaigns.store import SweepError, read_results
+
+    good = ctx.tmp / "good.parquet"
+    pd.DataFrame({"x": [1.0]}).to_parquet(good)
+    out = _sweep_folder(ctx, part=good.read_bytes())
+    return refused(lambda: read_results(out), SweepError)
+
+
+def _manifest(text):
+    def case(ctx):
+        from quick_campaign import tiny
+
+        from vtestbed.campaigns.runner import sweep
+        from vtestbed.campaigns.store import SweepError
+
+        out = _sweep_folder(ctx, manifest=text)
+        return refused(lambda: sweep(tiny(), out, workers=1, progress=False), SweepError)
+
+    return case
+
+
+def _report_of_nothing(ctx):
+    (ctx.tmp / "empty").mkdir()
+    return cli(ctx, ["report", ctx.tmp / "empty"])
+
+
+def _identify_not_a_dataset(ctx):
+    (ctx.tmp / "empty").mkdir()
+    return cli(ctx, ["identify", ctx.tmp / "empty"])
+
+
+NAN_T = np.eye(4).tolist()
+NAN_T[0][3] = float("nan")
+FAR_T = np.eye(4).tolist()
+FAR_T[2][3] = 5.0
+MIRROR = np.diag([1.0, 1.0, -1.0, 1.0]).tolist()
+LINES = {"cut": _cut_last_field}
+
+CASES = {
+    "setup-number": setup_text(b"5"),
+    "setup-not-utf8": setup_text(b'{"robot": "kr\xe960"}'),
+    "setup-not-json": setup_text(b"{robot: kr60}"),
+    "setup-missing": setup_text(None),
+    "setup-key-missing": setup_error(robot=KeyError),
+    "setup-sensor-string": setup_error(force_sensor="ati"),
+    "setup-sensor-range-nan": setup_error(force_sensor={"range_N_Nm": [330, 330, 990, 30, 30, float("nan")]}),
+    "setup-sensor-range-zero": setup_error(force_sensor={"range_N_Nm": [330, 330, 990, 30, 30, 0]}),
+    "setup-edge-string": setup_error(block_edge_m="big"),
+    "setup-edge-negative": setup_error(block_edge_m=-0.08),
+    "setup-transform-ragged": setup_error(
+        block_in_flange=[[1, 0, 0, 0], [0, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    ),
+    "setup-transform-nan": setup_error(block_in_flange=NAN_T),
+    "setup-transform-far": setup_error(block_in_flange=FAR_T),
+    "setup-transform-mirrored": setup_error(sensor_in_flange=MIRROR),
+    "setup-robot-number": setup_error(robot=5),
+    "setup-convention": setup_error(angle_convention="kuka"),
+    "tests-row-short": csv_lines(_cut_last_field),
+    "tests-row-long": csv_lines(lambda lines: ("\n".join([*lines[:4], lines[4] + ",extra"]) + "\n").encode()),
+    "tests-not-utf8": csv_lines(lambda lines: "\n".join(lines).encode() + b"\n\xff\xfe,1\n"),
+    "tests-missing": _missing_tests,
+    "tests-word": row_error(2, q3_deg="ninety"),
+    "tests-not-finite": row_error(0, loaded_Fx_N="1e400"),
+    "tests-empty-id": row_error(3, test_id=" "),
+    "tests-duplicate-id": row_error(2, test_id="T001"),
+    "tests-group": row_error(2, group="calibration"),
+    "tests-overload": row_error(0, sensor_range=RANGE, unloaded_Fz_N="-901.5"),
+    "tests-cloud-absolute": row_error(1, cloud_loaded="/etc/passwd"),
+    "tests-cloud-escapes": row_error(1, cloud_unloaded="clouds/../../x.ply"),
+    "tests-cloud-missing": _missing_cloud,
+    "repeats-cloud-outside": _repeats("test_id,repeat,cloud\nT000,1,/tmp/x.ply\n"),
+    "truth-not-json": _truth('{"stiffness_true_Nm_per_rad": [1, 2'),
+    "truth-number": _truth("3.5"),
+    "truth-stiffness-nan": _truth('{"stiffness_true_Nm_per_rad": [1e9, NaN]}'),
+    "truth-tests-list": _truth('{"stiffness_true_Nm_per_rad": [1e9], "tests": [1]}'),
+    "identify-not-a-dataset": _identify_not_a_dataset,
+    "sweep-part-truncated": _parquet_part,
+    "sweep-part-foreign": _foreign_part,
+    "sweep-manifest-not-json": _manifest('{"fingerprint": 1'),
+    "sweep-manifest-plans": _manifest(json.dumps({"fingerprint": "x", "plans": [1]})),
+    "report-empty-folder": _report_of_nothing,
+}
+
+
+@pytest.mark.parametrize("key", sorted(set(ROWS) | set(CASES)))
+def test_documented_message_is_the_codes(key, tmp_path, capsys):
+    run_row(CASES, ROWS, key, Ctx(tmp_path, capsys))

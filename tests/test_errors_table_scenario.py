@@ -1,0 +1,167 @@
+"""docs/errors.md, scenario, campaign and robot rows: each bad file written for real and read by
+the library's loader, or given to the real command (``simulate``, ``sweep``, ``robot``), which
+refuses it before any simulation."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+
+import pytest
+from errors_table import Ctx, cli, refused, run_row, section_rows
+
+from vtestbed.campaigns.spec import load_campaign
+from vtestbed.errors import ScenarioError
+from vtestbed.scenario import load_scenario
+
+ROWS = section_rows(
+    "Scenario and campaign files (`ScenarioError`, `vtestbed/scenario.py`)",
+    "Robot descriptions and lab imports",
+)
+BASE = {
+    "name": "bad",
+    "robot": "kuka_kr60_3",
+    "seed": 1,
+    "poses": {"angles_deg": [[0, -60, -20, 30, 50, 45], [20, -40, -30, -40, 60, 45]]},
+    "load": {"hook": "hook_x", "anchor": "ring_5", "tension_N": 200.0},
+}
+CAMPAIGN = {"trials": 2, "seed": 5, "axes": {"n_tests": [2]}}
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float) and not math.isfinite(v):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + "}"
+    return json.dumps(v) if isinstance(v, str) else repr(v)
+
+
+def toml(data: dict, prefix: str = "") -> str:
+    """A small TOML writer (scalars and arrays first, then the tables)."""
+    head = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    tables = [f"\n[{prefix}{k}]\n" + toml(v, f"{prefix}{k}.") for k, v in data.items() if isinstance(v, dict)]
+    return "\n".join(head) + "\n" + "".join(tables)
+
+
+def scenario(ctx: Ctx, edit=None, text: bytes | None = None, campaign: dict | None = None):
+    """The base scenario (2 tests), changed by ``edit(data)`` (or the file's bytes): its path."""
+    data = copy.deepcopy(BASE)
+    if campaign is not None:
+        data["campaign"] = copy.deepcopy(campaign)
+    if edit is not None:
+        edit(data)
+    path = ctx.tmp / "bad.toml"
+    path.write_bytes(text if text is not None else toml(data).encode())
+    return path
+
+
+def load(edit=None, text=None):
+    """A case: the scenario file read by ``load_scenario``."""
+    return lambda ctx: refused(lambda: load_scenario(scenario(ctx, edit, text)), ScenarioError)
+
+
+def simulate(edit=None, text=None):
+    """A case: the scenario file given to ``vtestbed simulate`` (refused before simulating)."""
+    return lambda ctx: cli(ctx, ["simulate", scenario(ctx, edit, text), "--out", ctx.tmp / "out", "--quiet"])
+
+
+def campaign(edit):
+    """A case: a campaign file (the base scenario with a ``[campaign]`` table) read by ``load_campaign``."""
+    return lambda ctx: refused(lambda: load_campaign(scenario(ctx, edit, campaign=CAMPAIGN)), ScenarioError)
+
+
+def setter(path: str, value):
+    """``edit(data)`` setting the dotted ``path`` (a ``[i]`` suffix indexes a list) to ``value``."""
+
+    def edit(data):
+        *parents, last = path.split(".")
+        for key in parents:
+            data = data.setdefault(key, {})
+        if last.endswith("]"):
+            key, index = last[:-1].split("[")
+            data[key][int(index)] = value
+        elif value is KeyError:
+            del data[last]
+        else:
+            data[last] = value
+
+    return edit
+
+
+def _missing_file(ctx):
+    return cli(ctx, ["simulate", ctx.tmp / "none.toml", "--out", ctx.tmp / "out"])
+
+
+def _sweep_without_campaign(ctx):
+    return cli(ctx, ["sweep", scenario(ctx), "--out", ctx.tmp / "out", "--quiet"])
+
+
+def given(name: str, text: str, *argv):
+    """A case: ``vtestbed argv`` with ``{file}`` a file ``name`` holding ``text`` (nothing else is written)."""
+
+    def case(ctx):
+        path = ctx.tmp / name
+        path.write_text(text)
+        line = cli(ctx, [str(a).replace("{file}", str(path)).replace("{tmp}", str(ctx.tmp)) for a in argv])
+        assert [p.name for p in ctx.tmp.iterdir()] == [name]
+        return line
+
+    return case
+
+
+ONE_LINK = '<robot name="x"><link name="a"/></robot>'
+
+CASES = {
+    "scen-joint-limit": simulate(setter("poses.angles_deg[1]", [20, -40, -30, -40, 130, 45])),
+    "scen-singular": simulate(setter("poses.angles_deg[1]", [20, -40, -30, -40, 0, 45])),
+    "scen-near-singular": load(setter("poses.angles_deg[0]", [0, -60, -20, 30, 0.2, 45])),
+    "scen-pose-length": load(setter("poses.angles_deg[0]", [0, -60, -20, 30, 50])),
+    "scen-pose-nan": load(setter("poses.angles_deg[0]", [0, -60, float("nan"), 30, 50, 45])),
+    "scen-poses-empty": load(setter("poses.angles_deg", [])),
+    "scen-convention": load(setter("poses.convention", "kuka")),
+    "scen-hook-count": simulate(setter("load.hook", ["hook_x", "hook_y", "hook_x"])),
+    "scen-hook-nested": load(setter("load.hook", [["hook_x"], "hook_y"])),
+    "scen-hook-unknown": load(setter("load.hook", "hook_z")),
+    "scen-tension-range": load(setter("load.tension_N", 5000.0)),
+    "scen-tension-nan": load(setter("load.tension_N", float("nan"))),
+    "scen-unknown-key": simulate(setter("scanner.nosie", 0.1)),
+    "scen-unknown-top": load(setter("sead", 1)),
+    "scen-table-number": load(setter("scanner", 5)),
+    "scen-table-list": load(setter("force_sensor", [])),
+    "scen-name-missing": load(setter("name", KeyError)),
+    "scen-robot-unknown": load(setter("robot", "kr6")),
+    "scen-robot-path": load(setter("robot", "/etc")),
+    "scen-seed": load(setter("seed", -1)),
+    "scen-distance": load(setter("scanner.distance_m", 5.0)),
+    "scen-repeats": load(setter("scanner.repeats", 2.5)),
+    "scen-ft-noise": load(setter("force_sensor.noise_std", [1, 1, 1, 1, 1, -1])),
+    "scen-method": load(setter("identification.method", "wls")),
+    "scen-not-utf8": simulate(text=b'name = "kr\xe960"\n'),
+    "scen-not-toml": load(text=b"name = kr60\n"),
+    "scen-missing": _missing_file,
+    "camp-missing": _sweep_without_campaign,
+    "camp-trials-missing": campaign(setter("campaign.trials", KeyError)),
+    "camp-trials-zero": campaign(setter("campaign.trials", 0)),
+    "camp-unknown-axis": campaign(setter("campaign.axes.n_test", [1])),
+    "camp-duplicate-value": campaign(setter("campaign.axes.n_tests", [2, 2])),
+    "camp-too-many-tests": campaign(setter("campaign.axes.n_tests", [3])),
+    "robot-path": lambda ctx: cli(ctx, ["robot", "--robot", "/etc"]),
+    "urdf-not-xml": given("bad.urdf", "not xml", "robot", "import", "{file}", "--name", "zz_bad"),
+    "urdf-missing": given("bad.urdf", "", "robot", "import", "{tmp}/none.urdf", "--name", "zz_bad"),
+    "urdf-no-arm": given("one.urdf", ONE_LINK, "robot", "import", "{file}", "--name", "zz_bad"),
+    "manifest-unknown-key": given(
+        "lab.toml", "robot = 5\n", "dataset", "import", "{file}", "--out", "{tmp}/o"
+    ),
+    "manifest-missing": given("lab.toml", "", "dataset", "import", "{tmp}/none.toml", "--out", "{tmp}/o"),
+    "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
+}
+
+
+@pytest.mark.parametrize("key", sorted(set(ROWS) | set(CASES)))
+def test_documented_message_is_the_codes(key, tmp_path, capsys):
+    run_row(CASES, ROWS, key, Ctx(tmp_path, capsys))

@@ -1,0 +1,88 @@
+"""The 20 identification tests of ``scenarios/kr60_paper.toml``, drawn the paper's way, clear only.
+
+How they are drawn (the paper's Section 4, on the joint 2-3 map of the KR60-3):
+
+1. :func:`vtestbed.campaigns.posesets.kappa_pool` with ``numpy.random.default_rng(2023)``: poses
+   from the usable high-criterion regions Z1 and Z4 (inv_kappa >= 0.7 at the wrist centre,
+   A1 = 0, A6 = 45 deg as in the paper, joints 4-5 jittered +-30 deg, block above 0.8 m), the
+   regions taking turns;
+2. each pose rounded to 0.01 deg of the controller angles (what the scenario file holds, so the
+   checks below are made on the poses that are run);
+3. :func:`vtestbed.campaigns.posesets.nested_plan` at 200 N: the hooks take turns, the rings are
+   tried nearest first, and a test is kept only if the nominal checks and the truth world accept
+   it, clearance included (docs/clearance.md); a pose without such a test is dropped.
+
+Angles are KUKA controller degrees in the file and DH radians inside; tensions are N. Before
+clearance was checked, the file held the first 20 pool poses, seven of which a lab cannot run
+(kept for the clearance tests in ``tests/data/kr60_paper_unclear.toml``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..researcher.kinematics import ArmKinematics
+from ..scenario import Scenario
+from .posesets import FeasibilityChecker, TestPlan, kappa_pool, nested_plan
+from .spec import pose_set_defaults
+
+PAPER_TESTS_SEED = 2023
+PAPER_TESTS_COUNT = 20
+ANGLE_DECIMALS = 2  # controller degrees, as written in the scenario file
+
+
+def paper_tests(scenario: Scenario, n: int = PAPER_TESTS_COUNT, seed: int = PAPER_TESTS_SEED) -> TestPlan:
+    """The first ``n`` clear tests of the paper's kappa-region draw (see the module doc).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Supplies the robot, its lab and the scanner placement (``scenarios/kr60_paper.toml``).
+    n : int
+        Number of tests.
+    seed : int
+        Seed of the pose draw.
+
+    Returns
+    -------
+    TestPlan
+        ``q`` (n, 6) DH [rad] on the 0.01-deg grid of the controller angles, the hooks, rings
+        and tensions [N]; ``notes`` counts the dropped poses and the clearance refusals.
+    """
+    robot = scenario.robot
+    options = pose_set_defaults(scenario.lab)  # the paper's 200 N and block zone for the KR60
+    pool = kappa_pool(robot, options, np.random.default_rng(seed))
+    controller_deg = np.round(np.degrees(robot.dh_to_controller(pool.q)), ANGLE_DECIMALS)
+    rounded = robot.controller_to_dh(np.radians(controller_deg))
+    checker = FeasibilityChecker(scenario)
+    kin = ArmKinematics(robot, scenario.lab.block_in_flange)
+    plan = nested_plan("kappa_regions", iter(rounded), n, checker, kin, options.tension_N)
+    drawn = {row.tobytes(): i for i, row in enumerate(rounded)}
+    regions = [pool.regions[drawn[q.tobytes()]] for q in plan.q]
+    inv_kappa = [float(pool.inv_kappa[drawn[q.tobytes()]]) for q in plan.q]
+    return TestPlan(plan.pose_set, plan.q, plan.hooks, plan.anchors, plan.tensions,
+                    plan.notes | {"regions": regions, "inv_kappa": inv_kappa})  # fmt: skip
+
+
+def paper_tests_toml(scenario: Scenario, plan: TestPlan) -> str:
+    """The ``[poses]`` and ``[load]`` tables of ``plan`` as the scenario file writes them."""
+    controller = np.degrees(scenario.robot.dh_to_controller(plan.q))
+    rows = []
+    for i, angles in enumerate(controller):
+        cells = ", ".join(f"{a:7.2f}" for a in angles)
+        region, ik = plan.notes["regions"][i], plan.notes["inv_kappa"][i]
+        rows.append(f"    [{cells}],  # {region} inv_kappa {ik:.3f} {plan.hooks[i]} {plan.anchors[i]}")
+    lines = ["[poses]", 'convention = "controller"', "angles_deg = [", *rows, "]", ""]
+    lines += [
+        "# Per test: the block hook, the table ring (hooks take turns, nearest feasible ring below the",
+        "# block) and the wire tension.",
+        "[load]",
+        f"hook = [{_quoted(plan.hooks)}]",
+        f"anchor = [{_quoted(plan.anchors)}]",
+        f"tension_N = {plan.tensions[0]:.1f}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _quoted(names) -> str:
+    return ", ".join(f'"{name}"' for name in names)
