@@ -4,8 +4,10 @@ Worlds: ``scenarios/kr60_paper.toml`` with two effects hidden together, each at 
 default (docs/effects.md), for the pairs of the effects the workflow detects alone at that size
 (docs/discrepancy_benchmark.md). Every trial is exactly a trial of
 ``benchmarks/bench_discrepancy.py`` (same noise draws, 3 repeat scans per test, exact statics,
-alpha 0.01, forward naming until nothing is significant). Prints per pair: both named, one named,
-a wrong name among those named, nothing, with 95 % Clopper-Pearson intervals.
+alpha 0.01, stepwise naming until nothing is significant). Prints per pair: both named, one named,
+a wrong name among those named (the third names), nothing, with 95 % Clopper-Pearson intervals,
+and the terms the backward step dropped (named in an early round, redundant once both effects
+were named: diagnose.name_effects).
 
     .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
 """
@@ -35,7 +37,15 @@ PAIRS = (
 
 def tally(pair: str, records: list[dict]) -> dict:
     expected = {bench.expected_label(EFFECTS[n]()) for n in pair.split("+")}
-    out = {"both": 0, "one": 0, "wrong": 0, "nothing": 0, "error": 0, "extra": Counter()}
+    out = {
+        "both": 0,
+        "one": 0,
+        "wrong": 0,
+        "nothing": 0,
+        "error": 0,
+        "extra": Counter(),
+        "dropped": Counter(),
+    }
     for r in records:
         if "error" in r:
             out["error"] += 1
@@ -47,6 +57,7 @@ def tally(pair: str, records: list[dict]) -> dict:
         out["nothing"] += not named
         out["wrong"] += bool(named - expected)
         out["extra"].update(named - expected)
+        out["dropped"].update(r.get("dropped", ()))
     return out
 
 
@@ -92,15 +103,17 @@ def main() -> None:
     print(f"# bench_two_effects: {bench.SCENARIO.name}, {args.seeds} seeds per world (seed {bench.SEED0}+k), "
           f"realistic sizes, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
     print(
-        "| hidden pair | n | both named [95 % CI] | one named | a third name too | nothing | errors | third names (count) |"
+        "| hidden pair | n | both named [95 % CI] | one named | a third name too | nothing | errors | third names (count) "
+        "| dropped by the backward step (count) |"
     )
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |")
     for pair in pairs:
         t, n = tally(pair, results[pair]), len(results[pair])
         lo, hi = clopper_pearson(t["both"], n)
         print(f"| {pair.replace('+', ' + ')} | {n} | {100 * t['both'] / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] "
               f"| {t['one']} | {t['wrong']} | {t['nothing']} | {t['error']} "
-              f"| {', '.join(f'{k} ({v})' for k, v in t['extra'].most_common(3))} |")  # fmt: skip
+              f"| {', '.join(f'{k} ({v})' for k, v in t['extra'].most_common(3))} "
+              f"| {', '.join(f'{k} ({v})' for k, v in t['dropped'].most_common(3))} |")  # fmt: skip
     for pair in pairs:
         for r in results[pair]:
             if "error" in r:

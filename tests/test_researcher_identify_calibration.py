@@ -12,12 +12,13 @@ from vtestbed.researcher.measure import identify_measurements
 from vtestbed.scenario import load_scenario
 
 SEEDS = 50  # >= 30; the std of a z-score std over N seeds is about 1/sqrt(2N) = 10 %
-SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml"
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
 
 @pytest.mark.slow
-def test_k_std_is_honest_and_error_shrinks_with_the_test_count():
-    scenario = load_scenario(SCENARIO)
+@pytest.mark.parametrize("name", ["kr60_paper", "kr60_chamfered"])  # the box, and a mesh target
+def test_k_std_is_honest_and_error_shrinks_with_the_test_count(name):
+    scenario = load_scenario(SCENARIOS / f"{name}.toml")
     prepared = prepare(scenario)
     k_true = prepared.stiffness_true
     truth = np.array([t.displacement_true for t in prepared.identification_tests()])

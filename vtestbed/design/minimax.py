@@ -42,8 +42,10 @@ from .optimal import (
     _a_stack,
     _prior,
     evaluate,
+    exchange,
     measurement_covariance,
     select_tests,
+    test_information,
 )
 
 RELAXED = ("minimax", "A", "D")  # the criteria with a relaxation and a bound
@@ -287,28 +289,12 @@ def _exchange_from(
     a, start, prior, criterion, sigma_p, sigma_r, base_information=None, max_passes=20
 ) -> Selection:
     """Fedorov exchange on the exact criterion from the tests ``start`` (indices into ``a``)."""
-    from .optimal import _scores, test_information  # the same scores as select_tests
-
     info = test_information(a, sigma_p, sigma_r)
     s = 1.0 / _prior(prior, info.shape[1])
     info = info * np.outer(s, s)
-    chosen = [int(i) for i in start]
-    total = info[chosen].sum(axis=0)
+    total = info[[int(i) for i in start]].sum(axis=0)
     if base_information is not None:
         total = total + np.asarray(base_information, dtype=float) * np.outer(s, s)
-    current = _scores(total[None], criterion)[0]
-    swaps = 0
-    for _ in range(max_passes):
-        improved = False
-        for pos in range(len(chosen)):
-            base = total - info[chosen[pos]]
-            scores = _scores(base[None] + info, criterion)
-            scores[chosen] = -np.inf
-            best = int(np.argmax(scores))
-            if scores[best] > current + 1e-12 * max(1.0, abs(current)):
-                chosen[pos], total, current = best, base + info[best], scores[best]
-                swaps, improved = swaps + 1, True
-        if not improved:
-            break
+    chosen, swaps = exchange(info, [int(i) for i in start], total, criterion, max_passes)
     report = evaluate(a[chosen], 1.0 / s, sigma_p, sigma_r, base_information)
     return Selection(tuple(chosen), criterion, "relaxation+exchange", report, swaps)

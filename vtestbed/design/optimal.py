@@ -339,23 +339,35 @@ def select_tests(
         total = total + info[best]
     swaps = 0
     if method == "exchange":
-        current = _scores(total[None], criterion)[0]
-        for _ in range(max_passes):
-            improved = False
-            for pos in range(n):
-                base = total - info[chosen[pos]]
-                scores = _scores(base[None] + info, criterion)
-                scores[chosen] = -np.inf
-                best = int(np.argmax(scores))
-                if scores[best] > current + 1e-12 * max(1.0, abs(current)):
-                    chosen[pos], total, current = best, base + info[best], scores[best]
-                    swaps += 1
-                    improved = True
-            if not improved:
-                break
+        chosen, swaps = exchange(info, chosen, total, criterion, max_passes)
     tests = _a_stack(candidates)[chosen]
     report = evaluate(tests, 1.0 / s, sigma_p, sigma_r, base_information)
     return Selection(tuple(chosen), criterion, method, report, swaps)
+
+
+def exchange(info: np.ndarray, chosen: list[int], total: np.ndarray, criterion: str, max_passes: int = 20):
+    """Fedorov exchange: swap a chosen test for an unchosen one while that improves the criterion.
+
+    ``info`` (T, n, n): each candidate's relative information; ``chosen``: the start (indices);
+    ``total`` (n, n): their sum plus any fixed part (ridge, tests already made). Deterministic: ties
+    go to the lowest index. Returns the chosen indices and the number of swaps.
+    """
+    chosen = list(chosen)
+    current = _scores(total[None], criterion)[0]
+    swaps = 0
+    for _ in range(max_passes):
+        improved = False
+        for pos in range(len(chosen)):
+            base = total - info[chosen[pos]]
+            scores = _scores(base[None] + info, criterion)
+            scores[chosen] = -np.inf
+            best = int(np.argmax(scores))
+            if scores[best] > current + 1e-12 * max(1.0, abs(current)):
+                chosen[pos], total, current = best, base + info[best], scores[best]
+                swaps, improved = swaps + 1, True
+        if not improved:
+            break
+    return chosen, swaps
 
 
 def scenario_toml(tests) -> str:
