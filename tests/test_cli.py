@@ -67,3 +67,10 @@ def test_invalid_campaign_errors_before_any_work(tmp_path, capsys):
         err = capsys.readouterr().err
         assert message in err, err
     assert not (tmp_path / "out").exists()  # nothing was started
+
+
+def test_identify_method_choices_are_the_scenario_methods():
+    from vtestbed.cli.experiment import IDENTIFY_METHODS
+    from vtestbed.scenario import METHODS
+
+    assert IDENTIFY_METHODS == METHODS

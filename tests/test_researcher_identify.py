@@ -100,7 +100,7 @@ def test_error_shrinks_as_one_over_sqrt_n(robot, lab):
 def test_bad_inputs(robot, lab, rng):
     jac, wrench = _tests(robot, lab, rng, 3)
     d = np.zeros((3, 6))
-    with pytest.raises(UnknownNameError, match="fgls, ols, wls"):
+    with pytest.raises(UnknownNameError, match="fgls, fgls6, fgls_pooled, ols, wls"):
         identify(jac, wrench, d, method="lsq")
     slack = wrench.copy()
     slack[1] = 0.0

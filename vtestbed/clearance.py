@@ -25,8 +25,9 @@ from .target_geometry import Polytope, hook_edges, hook_faces, mesh_polytope, po
 LINK_MARGIN_M = 0.010  # links, sensor and block against the table top and the floor
 WIRE_MARGIN_M = 0.005  # the wire against the links, the sensor and the block's edges
 SIGHT_MARGIN_M = 0.005  # a sight line from the scanner to a scanned face against any obstacle
-# Radii [m] of the link shells the truth world draws (world/mjcf.py): link i is a capsule from DH
-# frame i's origin to frame i+1's, the last one a sphere at the flange. A test checks they agree.
+# Radii [m] of the link shells the truth world draws (world/mjcf.py imports them): link i is a
+# capsule from DH frame i's origin to frame i+1's, the last one a sphere at the flange; the KR60-3's
+# sizes, used for every robot (a robot.toml has no link radii yet).
 LINK_RADII = (0.16, 0.11, 0.10, 0.075, 0.065, 0.05)
 BASE_RADIUS_M, BASE_HEIGHT_M = 0.25, 0.30  # the base drum, standing on the floor
 STEM_RADIUS_M = 0.015

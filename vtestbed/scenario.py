@@ -29,7 +29,8 @@ from .world.scan_noise import ScanNoise
 from .world.sensors import DEFAULT_NOISE_STD, NO_BIAS
 
 CONVENTIONS = ("dh", "controller")
-METHODS = ("ols", "fgls")  # "wls" needs a stated displacement covariance, which a scenario has not
+# "wls" needs a stated displacement covariance, which a scenario has not; "fgls_pooled": docs/uncertainty.md
+METHODS = ("ols", "fgls", "fgls_pooled")
 DEFAULT_METHOD = "fgls"
 DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
 POINT_SPACING_RANGE_M = (2e-5, 5e-3)

@@ -24,7 +24,8 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from ..lab import PAPER_LAB, LabSetup
+from ..clearance import LINK_RADII  # the link shells: one definition for the world and the checks
+from ..lab import LabSetup, lab_for_robot
 from ..robots import RobotDescription, robot_dir
 from ..transforms import quat_wxyz
 from .effects.structure import add_hinges
@@ -44,8 +45,6 @@ TOOL_BODY = "ft_tool"
 SLACK_LENGTH = 100.0  # m: a dead band this long leaves the wire slack in any pose
 SCANNABLE_GROUP = 0  # geom group of everything a scanner can see
 MARKER_GROUP = 3  # geom group of markers that a scanner must not see
-
-_LINK_RADII = (0.16, 0.11, 0.10, 0.075, 0.065, 0.05)
 
 
 class SceneEffect(Protocol):
@@ -131,12 +130,12 @@ def _add_robot(
             _visual_geom(
                 body,
                 type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-                size=[_LINK_RADII[i], 0.0, 0.0],
+                size=[LINK_RADII[i], 0.0, 0.0],
                 fromto=[0.0, 0.0, 0.0, *nxt],
                 rgba=rgba,
             )
         else:
-            _visual_geom(body, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[_LINK_RADII[i], 0, 0], rgba=rgba)
+            _visual_geom(body, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[LINK_RADII[i], 0, 0], rgba=rgba)
         parent = body
     parent.add_site(
         name=FLANGE_SITE,
@@ -294,10 +293,11 @@ def build_scene_spec(
 
 
 def model_files(robot: RobotDescription) -> dict[str, str]:
-    """The XML texts of ``<robot>.xml`` and ``scene.xml`` (default lab) as the generator produces them."""
+    """The XML texts of ``<robot>.xml`` and ``scene.xml`` (the robot's default lab,
+    :func:`vtestbed.lab.lab_for_robot`: the paper's for the KR60-3) as the generator produces them."""
     truth = load_truth(robot.name)
     robot_xml = build_robot_spec(robot, truth).to_xml()
-    scene_xml = build_scene_spec(robot, truth, PAPER_LAB).to_xml()
+    scene_xml = build_scene_spec(robot, truth, lab_for_robot(robot)).to_xml()
     return {f"{robot.name.removeprefix('kuka_')}.xml": robot_xml, "scene.xml": scene_xml}
 
 

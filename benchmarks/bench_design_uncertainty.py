@@ -1,0 +1,178 @@
+"""Is the reported std honest on every design? Full-pipeline Monte Carlo per test set and estimator.
+
+Test sets (issue 16, item 5): the paper's tests (``scenarios/kr60_paper.toml``, its first 12 and
+all 20), the minimax designs of ``vtestbed poses design`` at 200 N and at the lab's tension limit
+(588.6 N) with 12 and 20 tests (pool of ``--pool`` random poses, seed 0), and random tests (uniform
+poses in the lab's block zone, hooks and rings by the campaign rule, 200 N; the first 12 and 20 of
+one seeded stream). Each set is prepared once (MuJoCo equilibrium and ray cast,
+:func:`vtestbed.campaigns.montecarlo.prepare`); each trial draws the scanner and F/T noise with its
+seed and reduces the clouds (:func:`~vtestbed.campaigns.montecarlo.measure_trial`). The measured
+Jacobians, wrenches and displacements of every trial are cached (``--cache``), and every estimator
+identifies the same trials.
+
+Per set, joint and estimator it prints the Monte Carlo std of ``k/k_true - 1``, the mean reported
+std and its variation between trials (``rep CV``, std / mean), the z-score ``(k - k_true)/k_std``
+std and mean, the Cramer-Rao bound (:mod:`vtestbed.design.crlb`) and the efficiency CRLB^2 / MSE.
+Honest: z-score std within [0.8, 1.25] (docs/uncertainty.md).
+
+Run: .venv/bin/python benchmarks/bench_design_uncertainty.py [--trials 40] [--cache DIR]
+(one worker; about 4 s per trial of the six scenarios on this machine, plus about a minute for the
+random set's feasibility checks; a second run with the same --cache and --trials only identifies, 40 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import vtestbed as vt
+from vtestbed.campaigns import posesets
+from vtestbed.campaigns.montecarlo import measure_trial, prepare
+from vtestbed.campaigns.spec import pose_set_defaults
+from vtestbed.design import crlb
+from vtestbed.design import optimal as design
+from vtestbed.researcher.identify import identify
+from vtestbed.researcher.kinematics import ArmKinematics
+from vtestbed.researcher.measure import stacked
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "scenarios" / "kr60_paper.toml"
+ESTIMATORS = ("fgls", "fgls_pooled", "fgls6")
+DESIGNS = {"minimax_200N": 200.0, "minimax_limit": None}  # None: the lab's limit (--tension default)
+HONEST = (0.8, 1.25)
+
+
+def design_scenario(out: Path, tests: int, tension: float | None, pool: int) -> Path:
+    """``vtestbed poses design`` (minimax, truth prior as in docs/poses.md), written to ``out``."""
+    path = out / "design_scenario.toml"
+    if not path.exists():
+        cmd = [sys.executable, "-m", "vtestbed", "poses", "design", "--stiffness-prior", "paper_table5",
+               "--tests", str(tests), "--n", str(pool), "--no-bound", "--out", str(out)]  # fmt: skip
+        if tension is not None:
+            cmd += ["--tension", str(tension)]
+        subprocess.run(cmd, check=True, capture_output=True)
+    return path
+
+
+def random_scenario(base, n: int, seed: int):
+    """``n`` random tests at the base scenario's lab (the campaigns' ``random`` pose set rule)."""
+    opts = pose_set_defaults(base.lab)
+    checker = posesets.FeasibilityChecker(base)
+    kin = ArmKinematics(base.robot, base.lab.block_in_flange)
+    stream = posesets.random_poses(base.robot, opts, np.random.default_rng(seed))
+    return posesets.nested_plan("random", stream, n, checker, kin, opts.tension_N).scenario(base)
+
+
+def test_sets(cache: Path, pool: int) -> dict:
+    """name -> (scenario, test counts): each scenario's first n tests for every n."""
+    base = vt.load_scenario(PAPER)
+    sets = {"paper": (base, (12, 20)), "random": (random_scenario(base, 20, 7), (12, 20))}
+    for name, tension in DESIGNS.items():
+        for n in (12, 20):
+            path = design_scenario(cache / f"{name}_{n}", n, tension, pool)
+            sets[f"{name}_{n}"] = (vt.load_scenario(path), (n,))
+    return sets
+
+
+def measure(name: str, scenario, trials: int, cache: Path) -> dict:
+    """Cached (trials, T, ...) Jacobians, wrenches, displacements and the truth of one set."""
+    path = cache / f"{name}_trials{trials}.npz"
+    if path.exists():
+        return dict(np.load(path))
+    t0 = time.perf_counter()
+    prepared = prepare(scenario)
+    jac, wr, disp = [], [], []
+    for i in range(trials):
+        j, w, d = stacked(measure_trial(prepared, 16_000 + i))
+        jac.append(j), wr.append(w), disp.append(d)
+    out = dict(jacobians=np.array(jac), wrenches=np.array(wr), displacements=np.array(disp),
+               k_true=prepared.stiffness_true)  # fmt: skip
+    np.savez(path, **out)
+    print(
+        f"  {name}: {len(prepared.tests)} tests x {trials} trials in {time.perf_counter() - t0:.0f} s",
+        flush=True,
+    )
+    return out
+
+
+def bound(scenario, n: int, k_true: np.ndarray) -> np.ndarray:
+    """(n_joints,) relative CRLB std(k)/k of the scenario's first n tests (bench_crlb's chain)."""
+    sc, load = scenario, scenario.load
+    a = np.array([design.candidate_tests(sc.robot, q[None], [h], [r], t, sc.lab, check_sensor=False,
+                                         outward=False, clearance=False)[0].a
+                  for q, h, r, t in list(zip(sc.poses, load.hooks, load.anchors, load.tensions))[:n]])  # fmt: skip
+    spacing = sc.scanner.spacing or crlb.DEFAULT_SPACING_M
+    cov = crlb.pose_covariances(sc.robot, sc.poses[:n], sc.scanner.noise_model, sc.lab, sc.scanner.distance,
+                                spacing_m=spacing)  # fmt: skip
+    return crlb.stiffness_bound(a, cov, k_true).relative_std
+
+
+def evaluate(data: dict, n: int, method: str) -> dict:
+    """Per joint: MC std, mean reported std and its variation between trials (std / mean),
+    RMS error (relative), z-score std and mean."""
+    k_true = data["k_true"]
+    ks, stds = [], []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for j, w, d in zip(data["jacobians"], data["wrenches"], data["displacements"]):
+            res = identify(j[:n], w[:n], d[:n], method=method)
+            ks.append(res.stiffness), stds.append(res.stiffness_std)
+    ks, stds = np.array(ks), np.array(stds)
+    err = ks / k_true - 1
+    z = (ks - k_true) / stds
+    return {"mc": err.std(axis=0, ddof=1), "reported": np.mean(stds, axis=0) / k_true,
+            "rms": np.sqrt(np.mean(err**2, axis=0)), "z_std": z.std(axis=0, ddof=1), "z_mean": z.mean(axis=0),
+            "cv": np.std(stds, axis=0) / np.mean(stds, axis=0)}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--trials", type=int, default=40, help="Monte Carlo trials per set (default %(default)s)"
+    )
+    parser.add_argument(
+        "--pool", type=int, default=400, help="random poses of the design pool (default %(default)s)"
+    )
+    parser.add_argument("--cache", default=str(ROOT / "runs" / "bench_design_uncertainty"),
+                        help="directory for the designs and the measured trials (default %(default)s)")  # fmt: skip
+    parser.add_argument("--methods", default=",".join(ESTIMATORS), help="estimators (default %(default)s)")
+    args = parser.parse_args()
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    methods = args.methods.split(",")
+    sets = test_sets(cache, args.pool)
+    se = 1 / np.sqrt(2 * (args.trials - 1))
+    print(f"{args.trials} trials per set; a z-score std from them is uncertain by about {se * 100:.0f} %; "
+          f"honest: z std in [{HONEST[0]}, {HONEST[1]}]")  # fmt: skip
+    summary = []
+    for name, (scenario, counts) in sets.items():
+        data = measure(name, scenario, args.trials, cache)
+        for n in counts:
+            lb = bound(scenario, n, data["k_true"])
+            print(f"\n{name}, {n} tests; relative to k_true [%]; CRLB {np.round(lb * 100, 3).tolist()}")
+            print(f"{'method':12s}{'joint':>6s}{'MC std':>9s}{'reported':>9s}{'rep/MC':>8s}{'rep CV':>7s}{'z std':>7s}"
+                  f"{'z mean':>8s}{'CRLB':>8s}{'eff.':>6s}")  # fmt: skip
+            for method in methods:
+                r = evaluate(data, n, method)
+                for j in range(len(lb)):
+                    print(f"{method:12s}{j + 1:6d}{r['mc'][j] * 100:9.3f}{r['reported'][j] * 100:9.3f}"
+                          f"{r['reported'][j] / r['mc'][j]:8.2f}{r['cv'][j]:7.2f}{r['z_std'][j]:7.2f}{r['z_mean'][j]:8.2f}"
+                          f"{lb[j] * 100:8.3f}{lb[j] ** 2 / r['rms'][j] ** 2:6.2f}")  # fmt: skip
+                honest = bool(np.all((r["z_std"] >= HONEST[0]) & (r["z_std"] <= HONEST[1])))
+                summary.append((f"{name}:{n}" if name.startswith(("paper", "random")) else name, method,
+                                r["z_std"], honest, np.median(lb**2 / r["rms"] ** 2)))  # fmt: skip
+    print("\nsummary: z-score std per joint (honest = all in range), median efficiency CRLB^2/MSE")
+    for label, method, z, honest, eff in summary:
+        print(
+            f"{label:20s}{method:12s}{np.round(z, 2)}  {'honest' if honest else 'NOT honest':10s} eff {eff:.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
