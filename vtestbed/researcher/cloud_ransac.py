@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .cloud import FitParams
+    from .block_frame import FitParams
 
 
 def _open3d():
