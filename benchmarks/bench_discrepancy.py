@@ -15,7 +15,8 @@ test's own scans and readings, :func:`~vtestbed.world.repeats.repeat_rng` and
 researcher's own code (``measure_arrays``; ``scan_frames`` -> ``noise_floor_from_frames``, the
 floor ``estimate_noise_floor`` gives from the files) and diagnosed as
 :func:`vtestbed.researcher.discrepancy.diagnose` does by default: ``name_effects(ModelContext(...,
-ExactStatics(kin, setup)), Whitener(floor), candidates(kin), alpha=0.01)`` and ``validation_gap``
+ExactStatics(kin, setup)), Whitener(floor), candidates(kin), alpha=0.01)`` (stepwise: forward,
+and backward after each addition) and ``validation_gap``
 before and after (``--statics paper``: the paper's linear model as the baseline).
 
 Size "near the detection limit": the factor ``f_lim`` on the effect's size (stiffness of a
@@ -230,6 +231,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
         "seed": seed,
         "named": [c.label for c in chosen],
         "names": [c.name for c in chosen],
+        "dropped": [d["label"] for s in steps for d in s.dropped],  # named, then stood in for later terms
         "chi2": base.chi2,
         "dof": base.dof,
         "p_detect": base.p_value,
@@ -472,6 +474,11 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         rs = results[world_key(name, size)]
         counts = Counter(" + ".join(r["named"]) or "nothing" for r in rs if "error" not in r)
         print(f"- {world_key(name, size)}: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
+    dropped = {world_key(n, z): Counter(d for r in results[world_key(n, z)] for d in r.get("dropped", ()))
+               for n, z, _ in worlds}  # fmt: skip
+    print("\nDropped by the backward step (named in a round, redundant once later terms were in): "
+          + ("; ".join(f"{k}: " + ", ".join(f"{a} {b}" for a, b in v.most_common()) for k, v in dropped.items() if v)
+             or "none"))  # fmt: skip
 
     print("\n## Misnamed (first round): the winner against the hidden effect's own candidate, medians\n")
     mis = {}

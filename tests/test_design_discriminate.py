@@ -166,6 +166,14 @@ def test_rivals_from_report():
               {"base": ["a"], "chosen": None, "runner_up": None, "delta_bic": None,
                "tests": [_row("b", 0.9, 100.0, False)]}]  # fmt: skip
     assert disc.rivals_from_report(_report(rounds)) is None
+    # a confusable first round whose chosen term the stepwise search dropped later: the rounds
+    # after it decide, and the dropped term leaves their baseline
+    stood_in = [{"base": [], "chosen": "z", "runner_up": "a", "delta_bic": 2.0, "tests": tests},
+                {"base": ["z"], "chosen": "a", "runner_up": "b", "delta_bic": 5.0, "tests": tests}]  # fmt: skip
+    report = _report(stood_in) | {"dropped": {"z": "named in round 1, dropped in round 2"}}
+    assert disc.rivals_from_report(report) == {"reason": "confusable", "base_terms": [], "round": 1,
+                                               "rivals": ["a", "b"]}  # fmt: skip
+    assert disc.rivals_from_report(_report(stood_in))["round"] == 0  # without the drop, round 0 decides
 
 
 def test_bad_input(lab_model):

@@ -98,10 +98,15 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     * *marginal*, nothing named: the round's baseline and the plausible candidates within
       :data:`CONFUSABLE_BIC` of the best of them.
 
-    At most ``MAX_RIVALS`` models. Returns ``{"reason", "base_terms", "rivals", "round"}``.
+    A round whose chosen term the stepwise search later dropped (``report["dropped"]``: it stood in
+    for terms named after it) is skipped, and dropped terms leave every round's baseline. At most
+    ``MAX_RIVALS`` models. Returns ``{"reason", "base_terms", "rivals", "round"}``.
     """
     alpha = report["alpha"] if alpha is None else alpha
+    dropped = set(report.get("dropped") or ())
     for k, rnd in enumerate(report["rounds"]):
+        if rnd["chosen"] in dropped:
+            continue
         m = len(rnd["tests"])
         plausible = sorted(
             (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] * m < MARGINAL_FACTOR * alpha),
@@ -114,7 +119,7 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         close = [lead["label"]] + [
             t["label"] for t in plausible if t is not lead and t["bic"] - lead["bic"] < CONFUSABLE_BIC
         ]
-        base = {"base_terms": list(rnd["base"]), "round": k}
+        base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
         if chosen and rnd["delta_bic"] is not None and rnd["delta_bic"] < CONFUSABLE_BIC:
             return {"reason": "confusable", "rivals": close[:MAX_RIVALS], **base}
         if chosen is None or chosen["p_value"] * m > alpha / MARGINAL_FACTOR:

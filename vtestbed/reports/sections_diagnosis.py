@@ -49,6 +49,8 @@ def candidates(folder: ResultFolder) -> Section:
         rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t["bic"], ".2f"),
                  "yes" if t["significant"] else "no"] for t in rnd["tests"]]  # fmt: skip
         caption = f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
+        if rnd.get("dropped"):  # the stepwise search's re-test after this round's addition
+            caption += f"; dropped: {', '.join(d['label'] for d in rnd['dropped'])}"
         blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "BIC", "significant"], rows,
                             id=f"candidates-round-{i}", caption=caption))  # fmt: skip
     return Section("candidates", "Candidate terms", blocks)
@@ -59,6 +61,7 @@ def named(folder: ResultFolder) -> Section:
     r = folder.data
     text = [f"Named: {', '.join(r['named']) or 'nothing'}."]
     text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
+    text += [f"{label} (dropped): {note}" for label, note in r.get("dropped", {}).items()]  # stepwise search
     text += [
         f"{c['chosen']} could also be {c['runner_up']} (BIC only {c['delta_bic']:.1f} apart)"
         for c in r["confusable"]

@@ -8,8 +8,10 @@ missing effect, add it, and show the gap shrink. Researcher side: it reads a dat
 2. **Name.** Each candidate term (:mod:`.candidates`) is added in turn; a likelihood-ratio test
    (``chi2_base - chi2_candidate`` against chi^2 with the candidate's parameter count) at a
    family-wise error rate ``alpha`` (Bonferroni over the candidates still in play) decides
-   whether it is needed; the significant ones are ranked by BIC; the best is kept and the
-   search repeats until nothing significant remains (so two hidden effects can both be named).
+   whether it is needed; the significant ones are ranked by BIC; the best is kept, the terms
+   kept before are re-tested given the others and dropped when no longer needed (backward
+   elimination: a term can stand in for two effects until both are named), and the search
+   repeats until nothing significant remains (so two hidden effects can both be named).
    A candidate that the stiffnesses already explain (its whitened columns lie in their span)
    is reported as absorbed, with the joint that absorbs it.
 3. **Add and show.** The chosen terms join the model; validation tests are predicted before and
@@ -164,7 +166,8 @@ def absorbed_by(ctx: ModelContext, white: Whitener, term: Candidate, compliance,
 
 @dataclass(frozen=True)
 class Step:
-    """One round of the forward search: every candidate's test against the current model."""
+    """One round of the stepwise search: every candidate's test against the current model, then
+    the re-test of the terms named before (``dropped``: those no longer needed)."""
 
     base_terms: tuple[str, ...]
     base_chi2: float
@@ -172,6 +175,38 @@ class Step:
     chosen: str | None
     runner_up: str | None = None  # the best other significant candidate
     delta_bic: float | None = None  # its BIC minus the chosen one's (< CONFUSABLE_BIC: confusable)
+    dropped: tuple = ()  # dicts: label, lr, df, p_value, level, others (see :func:`_drop_redundant`)
+
+
+def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n_pool: int):
+    """Backward elimination: drop the named terms the others have made redundant.
+
+    Each term is re-tested against the model of the other named terms, at the level at which a
+    forward round from those terms would test it (``alpha / (n_pool - len(others))``, the
+    Bonferroni level over the candidates then in play). The least significant term above its
+    level is dropped, and the re-test repeats. A term named early can stand in for a
+    combination of two effects (a 6-parameter ``block_offset`` fits a wrist coupling plus a
+    sensor misalignment better than either alone); once both are named, its likelihood ratio
+    falls to the noise. Returns the kept terms, their fit, and the drops (dicts).
+    """
+    dropped = []
+    while len(chosen) > 1:
+        worst = None
+        level = alpha / (n_pool - len(chosen) + 1)
+        for term in chosen:
+            others = [t for t in chosen if t is not term]
+            fit = fit_model(ctx, white, others)
+            lr, df = max(fit.chi2 - current.chi2, 0.0), len(current.x) - len(fit.x)
+            p = float(chdtrc(df, lr)) if df > 0 else 1.0
+            if p >= level and (worst is None or p > worst[0]):
+                worst = (p, term, fit, lr, df, [t.label for t in others])
+        if worst is None:
+            break
+        p, term, current, lr, df, others = worst
+        chosen = [t for t in chosen if t is not term]
+        dropped.append({"label": term.label, "lr": float(lr), "df": int(df), "p_value": p,
+                        "level": float(level), "others": others})  # fmt: skip
+    return chosen, current, dropped
 
 
 def name_effects(
@@ -181,14 +216,16 @@ def name_effects(
     alpha: float = DEFAULT_ALPHA,
     max_terms: int = 3,
 ) -> tuple[list[Candidate], list[Step], ModelFit]:
-    """Forward selection by likelihood ratio (Bonferroni at ``alpha``) and BIC; returns the chosen
-    terms, the rounds, and the final fit."""
+    """Stepwise selection: forward by likelihood ratio (Bonferroni at ``alpha``) and BIC, and after
+    each addition backward (:func:`_drop_redundant`); returns the chosen terms, the rounds, and
+    the final fit. A set of terms reached twice ends the search (no cycling)."""
     if not 0.0 < alpha < 1.0:
         raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
     chosen: list[Candidate] = []
     steps: list[Step] = []
     current = fit_model(ctx, white, chosen)
     n_obs = 6 * ctx.n_tests
+    seen = {frozenset()}
     while len(chosen) < max_terms:
         remaining = [c for c in pool if c.label not in {t.label for t in chosen}]
         if not remaining:
@@ -209,14 +246,19 @@ def name_effects(
         if best is not None:
             others = [r for r in rows if r["significant"] and r["label"] != best[1].label]
             runner = min(others, key=lambda r: r["bic"]) if others else None
+        base_terms, base_chi2 = tuple(t.label for t in chosen), current.chi2
+        dropped = []
+        if best is not None:
+            chosen, current = [*chosen, best[1]], best[2]
+            chosen, current, dropped = _drop_redundant(ctx, white, chosen, current, alpha, len(pool))
         steps.append(
-            Step(tuple(t.label for t in chosen), current.chi2, rows, best[1].label if best else None,
-                 runner["label"] if runner else None, float(runner["bic"] - best[0]) if runner else None)
+            Step(base_terms, base_chi2, rows, best[1].label if best else None, runner["label"] if runner else None,
+                 float(runner["bic"] - best[0]) if runner else None, tuple(dropped))
         )  # fmt: skip
-        if best is None:
+        state = frozenset(t.label for t in chosen)
+        if best is None or state in seen:
             break
-        chosen.append(best[1])
-        current = best[2]
+        seen.add(state)
     return chosen, steps, current
 
 

@@ -90,12 +90,14 @@ def diagnose(
         },
         "named": [c.label for c in chosen],
         "absorbed": absorbed,
+        "dropped": dropped_notes(steps, names_chosen),
         "confusable": [
             {"chosen": s.chosen, "runner_up": s.runner_up, "delta_bic": s.delta_bic}
-            for s in steps if s.chosen and s.delta_bic is not None and s.delta_bic < CONFUSABLE_BIC
+            for s in steps if s.chosen in names_chosen and s.delta_bic is not None and s.delta_bic < CONFUSABLE_BIC
         ],
         "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "chosen": s.chosen,
-                    "runner_up": s.runner_up, "delta_bic": s.delta_bic, "tests": s.tests}
+                    "runner_up": s.runner_up, "delta_bic": s.delta_bic, "tests": s.tests,
+                    "dropped": list(s.dropped)}
                    for s in steps],
         "baseline": base.to_dict(),
         "model": final.to_dict(),
@@ -111,6 +113,23 @@ def diagnose(
         write_report(report, Path(out), kin.robot.joint_names)
         write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot, statics))
     return report
+
+
+def dropped_notes(steps, kept=()) -> dict:
+    """Per term named in one round and dropped in a later one (and not ``kept`` in the end): why.
+
+    Such a term stood in for the terms named after it: given them, it explains nothing beyond the
+    noise (:func:`.diagnose.name_effects`' backward step)."""
+    out = {}
+    for k, step in enumerate(steps, start=1):
+        for d in (d for d in step.dropped if d["label"] not in kept):
+            first = next(i for i, s in enumerate(steps, start=1) if s.chosen == d["label"])
+            out[d["label"]] = (
+                f"named in round {first}, dropped in round {k}: it stood in for {', '.join(d['others'])} "
+                f"(given them its likelihood ratio is {d['lr']:.1f} on {d['df']} parameters, "
+                f"p = {d['p_value']:.2g} >= {d['level']:.2g})"
+            )
+    return out
 
 
 def pose_features(ctx: ModelContext) -> dict:
@@ -185,7 +204,7 @@ def markdown(report: dict, joint_names) -> str:
         + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
         + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by BIC).",
     ]
-    for label, note in report["absorbed"].items():
+    for label, note in {**report["absorbed"], **report.get("dropped", {})}.items():
         lines.append(f"- `{label}`: {note}")
     for c in report["confusable"]:
         lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC only {c['delta_bic']:.1f} apart): "
