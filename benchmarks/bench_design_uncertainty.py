@@ -101,29 +101,40 @@ def measure(name: str, scenario, trials: int, cache: Path) -> dict:
     return out
 
 
+def scenario_a(scenario, n: int | None = None) -> np.ndarray:
+    """(n, 6, n_joints) nominal ``A`` of the scenario's first ``n`` tests (all: None), no checks."""
+    sc, load = scenario, scenario.load
+    return np.array([design.candidate_tests(sc.robot, q[None], [h], [r], t, sc.lab, check_sensor=False,
+                                            outward=False, clearance=False)[0].a
+                     for q, h, r, t in list(zip(sc.poses, load.hooks, load.anchors, load.tensions))[:n]])  # fmt: skip
+
+
 def bound(scenario, n: int, k_true: np.ndarray) -> np.ndarray:
     """(n_joints,) relative CRLB std(k)/k of the scenario's first n tests (bench_crlb's chain)."""
-    sc, load = scenario, scenario.load
-    a = np.array([design.candidate_tests(sc.robot, q[None], [h], [r], t, sc.lab, check_sensor=False,
-                                         outward=False, clearance=False)[0].a
-                  for q, h, r, t in list(zip(sc.poses, load.hooks, load.anchors, load.tensions))[:n]])  # fmt: skip
+    sc = scenario
+    a = scenario_a(sc, n)
     spacing = sc.scanner.spacing or crlb.DEFAULT_SPACING_M
     cov = crlb.pose_covariances(sc.robot, sc.poses[:n], sc.scanner.noise_model, sc.lab, sc.scanner.distance,
                                 spacing_m=spacing)  # fmt: skip
     return crlb.stiffness_bound(a, cov, k_true).relative_std
 
 
-def evaluate(data: dict, n: int, method: str) -> dict:
-    """Per joint: MC std, mean reported std and its variation between trials (std / mean),
-    RMS error (relative), z-score std and mean."""
-    k_true = data["k_true"]
+def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(trials, n_joints) estimates and reported stds [N*m/rad] from each trial's first n tests."""
     ks, stds = [], []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for j, w, d in zip(data["jacobians"], data["wrenches"], data["displacements"]):
             res = identify(j[:n], w[:n], d[:n], method=method)
             ks.append(res.stiffness), stds.append(res.stiffness_std)
-    ks, stds = np.array(ks), np.array(stds)
+    return np.array(ks), np.array(stds)
+
+
+def evaluate(data: dict, n: int, method: str) -> dict:
+    """Per joint: MC std, mean reported std and its variation between trials (std / mean),
+    RMS error (relative), z-score std and mean."""
+    k_true = data["k_true"]
+    ks, stds = identify_trials(data, n, method)
     err = ks / k_true - 1
     z = (ks - k_true) / stds
     return {"mc": err.std(axis=0, ddof=1), "reported": np.mean(stds, axis=0) / k_true,
