@@ -15,7 +15,7 @@ import numpy as np
 
 from ..clearance import scanner_position
 from ..errors import OutOfRangeError, VtestbedError
-from ..lab import PAPER_LAB, LabSetup
+from ..lab import G_N_PER_KG, PAPER_LAB, LabSetup
 from ..researcher.kinematics import ArmKinematics
 from ..robots import NEAR_SINGULAR, RobotDescription
 from .clearance import NominalClearance
@@ -52,7 +52,6 @@ def random_poses(
 
 
 SENSOR_USE = 0.98  # of the F/T range: the loaded pose's sag turns the wire by a fraction of a degree
-G = 9.81  # m/s^2
 
 
 def _tool_mass(lab: LabSetup) -> float:
@@ -63,7 +62,7 @@ def _tool_mass(lab: LabSetup) -> float:
 def _tool_weight(kin: ArmKinematics, lab: LabSetup, q) -> np.ndarray:
     """(3,) the tool's weight [N] in the sensor's axes at pose ``q`` (it adds to the wire's pull)."""
     sensor = kin.flange_pose(q) @ lab.sensor_in_flange
-    return sensor[:3, :3].T @ np.array([0.0, 0.0, -_tool_mass(lab) * G])
+    return sensor[:3, :3].T @ np.array([0.0, 0.0, -_tool_mass(lab) * G_N_PER_KG])
 
 
 def _tool_torque_bound(lab: LabSetup) -> float:
@@ -71,7 +70,7 @@ def _tool_torque_bound(lab: LabSetup) -> float:
     corners = np.array([[x, y, z] for x in (0, -1) for y in (0, -1) for z in (0, -1)]) * lab.block.edge
     b, s = lab.block_in_flange, lab.sensor_in_flange
     far = max(np.linalg.norm(b[:3, :3] @ c + b[:3, 3] - s[:3, 3]) for c in corners)
-    return _tool_mass(lab) * G * far
+    return _tool_mass(lab) * G_N_PER_KG * far
 
 
 SCANNER_MARGIN_M = 0.01  # the unloaded block sags a few mm below its commanded pose
