@@ -128,7 +128,7 @@ def base_data(spec: PaperSetSpec, name: str) -> dict:
             "scanner": {"distance_m": spec.scanner_distance_m}}  # fmt: skip
 
 
-def _rounded(robot, q_dh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def rounded_pose(robot, q_dh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(controller angles rounded [deg], the DH pose they give [rad])."""
     deg = np.round(np.degrees(robot.dh_to_controller(q_dh)), DECIMALS) + 0.0  # no -0.0
     return deg, robot.controller_to_dh(np.radians(deg))
@@ -154,7 +154,7 @@ def draw(spec: PaperSetSpec) -> PaperSet:
 
     def stream(qs):
         for q in qs:
-            deg, q_dh = _rounded(robot, q)
+            deg, q_dh = rounded_pose(robot, q)
             if np.all((q_dh >= robot.lower) & (q_dh <= robot.upper)) and cons.ok(robot, q_dh)[0]:
                 if robot.jacobian_conditioning(q_dh, lab.block_in_flange[:3, 3]) >= NEAR_SINGULAR:
                     origin[q_dh.tobytes()] = deg
@@ -163,7 +163,7 @@ def draw(spec: PaperSetSpec) -> PaperSet:
     checker, kin = ResearcherChecker(scenario), ArmKinematics(robot, lab.block_in_flange)
     region_of = {}
     for q, name in zip(pool.q, pool.regions):
-        region_of[_rounded(robot, q)[1].tobytes()] = name
+        region_of[rounded_pose(robot, q)[1].tobytes()] = name
     plan = nested_plan("kappa_regions", stream(pool.q), spec.n_tests, checker, kin, spec.tension_N)
     low, high = (
         np.maximum(robot.lower, -np.pi),
@@ -180,7 +180,7 @@ def draw(spec: PaperSetSpec) -> PaperSet:
     )  # fmt: skip
 
 
-def _rows(angles, comments=None) -> str:
+def toml_rows(angles, comments=None) -> str:
     lines = []
     for i, row in enumerate(angles):
         text = "    [" + ", ".join(f"{v:7.2f}" for v in row) + "],"
@@ -188,7 +188,7 @@ def _rows(angles, comments=None) -> str:
     return "\n".join(lines)
 
 
-def _strings(values) -> str:
+def toml_strings(values) -> str:
     return "[" + ", ".join(f'"{v}"' for v in values) + "]"
 
 
@@ -255,14 +255,14 @@ seed = {s.seed}
 [poses]
 convention = "controller"
 angles_deg = [
-{_rows(ps.angles_deg, comments)}
+{toml_rows(ps.angles_deg, comments)}
 ]
 
 # Per test: the block hook, the table ring (hooks take turns, nearest feasible ring) and the wire
 # tension: {s.tension_N:g} N of the lab's largest {ps.max_tension_N:.4g} N ({ps.max_tension_source}, docs/lab.md).
 [load]
-hook = {_strings(ps.hooks)}
-anchor = {_strings(ps.anchors)}
+hook = {toml_strings(ps.hooks)}
+anchor = {toml_strings(ps.anchors)}
 tension_N = {s.tension_N:g}
 
 # Validation (predicted against measured, as the paper's Table 6 and Figure 11): uniform random
@@ -270,10 +270,10 @@ tension_N = {s.tension_N:g}
 [validation]
 convention = "controller"
 angles_deg = [
-{_rows(ps.val_angles_deg)}
+{toml_rows(ps.val_angles_deg)}
 ]
-hook = {_strings(ps.val_hooks)}
-anchor = {_strings(ps.val_anchors)}
+hook = {toml_strings(ps.val_hooks)}
+anchor = {toml_strings(ps.val_anchors)}
 tension_N = {s.tension_N:g}
 
 [identification]

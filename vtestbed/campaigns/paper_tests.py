@@ -23,12 +23,12 @@ import numpy as np
 
 from ..researcher.kinematics import ArmKinematics
 from ..scenario import Scenario
+from .paper_set import rounded_pose, toml_rows, toml_strings
 from .posesets import FeasibilityChecker, TestPlan, kappa_pool, nested_plan
 from .spec import pose_set_defaults
 
 PAPER_TESTS_SEED = 2023
 PAPER_TESTS_COUNT = 20
-ANGLE_DECIMALS = 2  # controller degrees, as written in the scenario file
 
 
 def paper_tests(scenario: Scenario, n: int = PAPER_TESTS_COUNT, seed: int = PAPER_TESTS_SEED) -> TestPlan:
@@ -52,8 +52,7 @@ def paper_tests(scenario: Scenario, n: int = PAPER_TESTS_COUNT, seed: int = PAPE
     robot = scenario.robot
     options = pose_set_defaults(scenario.lab)  # the paper's 200 N and block zone for the KR60
     pool = kappa_pool(robot, options, np.random.default_rng(seed))
-    controller_deg = np.round(np.degrees(robot.dh_to_controller(pool.q)), ANGLE_DECIMALS)
-    rounded = robot.controller_to_dh(np.radians(controller_deg))
+    rounded = rounded_pose(robot, pool.q)[1]  # the file's 0.01-deg grid, as paper_set draws
     checker = FeasibilityChecker(scenario)
     kin = ArmKinematics(robot, scenario.lab.block_in_flange)
     plan = nested_plan("kappa_regions", iter(rounded), n, checker, kin, options.tension_N)
@@ -67,22 +66,22 @@ def paper_tests(scenario: Scenario, n: int = PAPER_TESTS_COUNT, seed: int = PAPE
 def paper_tests_toml(scenario: Scenario, plan: TestPlan) -> str:
     """The ``[poses]`` and ``[load]`` tables of ``plan`` as the scenario file writes them."""
     controller = np.degrees(scenario.robot.dh_to_controller(plan.q))
-    rows = []
-    for i, angles in enumerate(controller):
-        cells = ", ".join(f"{a:7.2f}" for a in angles)
-        region, ik = plan.notes["regions"][i], plan.notes["inv_kappa"][i]
-        rows.append(f"    [{cells}],  # {region} inv_kappa {ik:.3f} {plan.hooks[i]} {plan.anchors[i]}")
-    lines = ["[poses]", 'convention = "controller"', "angles_deg = [", *rows, "]", ""]
+    notes = zip(plan.notes["regions"], plan.notes["inv_kappa"], plan.hooks, plan.anchors)
+    comments = [f"{region} inv_kappa {ik:.3f} {hook} {ring}" for region, ik, hook, ring in notes]
+    lines = [
+        "[poses]",
+        'convention = "controller"',
+        "angles_deg = [",
+        toml_rows(controller, comments),
+        "]",
+        "",
+    ]
     lines += [
         "# Per test: the block hook, the table ring (hooks take turns, nearest feasible ring below the",
         "# block) and the wire tension.",
         "[load]",
-        f"hook = [{_quoted(plan.hooks)}]",
-        f"anchor = [{_quoted(plan.anchors)}]",
+        f"hook = {toml_strings(plan.hooks)}",
+        f"anchor = {toml_strings(plan.anchors)}",
         f"tension_N = {plan.tensions[0]:.1f}",
     ]
     return "\n".join(lines) + "\n"
-
-
-def _quoted(names) -> str:
-    return ", ".join(f'"{name}"' for name in names)
