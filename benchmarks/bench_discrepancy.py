@@ -266,11 +266,13 @@ def run_chunk(name: str | None, factor: float, seeds: list[int], statics: str) -
 
 
 # ---------------------------------------------------------------------------- choosing f_lim
-def noise_free(prepared):
-    """The identification tests reduced from a perfect scanner and a noise-free F/T sensor."""
+def noise_free(prepared, tests=None):
+    """``tests`` (default: the identification tests) reduced from a perfect scanner and a
+    noise-free F/T sensor."""
     scenario = prepared.scenario
     sensor = ForceTorqueSensor(scenario.lab.sensor, (0.0,) * 6, scenario.force_sensor.bias)
-    return measure_trial(prepared, 0, prepared.identification_tests(), noise=None, sensor=sensor)
+    tests = prepared.identification_tests() if tests is None else tests
+    return measure_trial(prepared, 0, tests, noise=None, sensor=sensor)
 
 
 def reference_floor(repeats: int) -> NoiseFloor:
@@ -288,9 +290,15 @@ def reference_floor(repeats: int) -> NoiseFloor:
 
 
 def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
-    """Noise-free noncentrality of the naming test (or of detection, without a candidate)."""
-    prepared, pool = prepared_world(name, factor, validation=False)
-    ctx = model_context(noise_free(prepared), prepared, statics)
+    """Noise-free noncentrality of the naming test (or of detection, without a candidate).
+
+    Every test of the world is reduced, the validation tests too: a size at which the researcher
+    cannot reduce some test's scans (the block leaves its nominal pose) raises here, so the size
+    search stays below it (a balancer at x29 once lost validation test V004's +x face).
+    """
+    prepared, pool = prepared_world(name, factor)
+    measured = noise_free(prepared, list(prepared.tests))
+    ctx = model_context([m for m in measured if m.group == "identification"], prepared, statics)
     base = fit_model(ctx, white, [])
     family = [c for c in pool if c.name == name]
     if not family:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property
 
 import numpy as np
 
@@ -205,7 +205,7 @@ class LabSetup:
         return {**robot, "the wire's safe working load": self.wire.safe_working_load_N,
                 f"the {self.sensor.name}'s force range": self.sensor.max_force}  # fmt: skip
 
-    @property
+    @cached_property  # checked on every tighten; the setup is frozen
     def max_tension(self) -> tuple[float, str]:
         """The lab's largest wire tension [N] and what sets it: the lowest of
         :attr:`tension_limits_N`, or the lab's own ``tension_cap_N`` when given."""

@@ -65,6 +65,8 @@ class Equilibrium:
         Evaluations of the residual and of the tangent stiffness.
     tangent : (nv, nv) array
         The latest tangent stiffness [N*m/rad] (evaluated at or near ``qpos``).
+    inverse : (nv, nv) array or None
+        Its inverse [rad/(N*m)], when the solver formed it.
     """
 
     qpos: np.ndarray
@@ -74,6 +76,7 @@ class Equilibrium:
     residual_calls: int
     tangent_calls: int
     tangent: np.ndarray
+    inverse: np.ndarray | None = None
 
 
 def mujoco_tangent(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray) -> np.ndarray:
@@ -138,6 +141,8 @@ def newton(
     q0: np.ndarray,
     max_iterations: int = 50,
     tangent0: np.ndarray | None = None,
+    tangent0_exact: bool = True,
+    inverse0: np.ndarray | None = None,
 ) -> Equilibrium:
     """Solve ``residual(q) = 0`` by safeguarded Newton from ``q0``.
 
@@ -155,7 +160,12 @@ def newton(
     max_iterations : int
         Newton steps allowed.
     tangent0 : (nv, nv) array, optional
-        A tangent valid at ``q0`` (saves the first tangent evaluation).
+        A tangent at or near ``q0`` (saves the first tangent evaluation).
+    tangent0_exact : bool
+        Whether ``tangent0`` was evaluated at ``q0``; if not (a neighbouring state's, as when the
+        wire is tightened from the unloaded equilibrium), a step it fails first refreshes it.
+    inverse0 : (nv, nv) array, optional
+        The inverse of ``tangent0`` when known (an earlier solve's :attr:`Equilibrium.inverse`).
 
     Raises
     ------
@@ -170,11 +180,11 @@ def newton(
     r = residual(q)
     calls, tangents = 1, 0
     if tangent0 is None:
-        k, tangents = tangent(q), 1
+        k, tangents, fresh = tangent(q), 1, True
     else:
-        k = tangent0
-    h, tol = _inverse(k), tolerance(q, k)
-    fresh = True  # the tangent was evaluated at the current q
+        k, fresh = tangent0, tangent0_exact
+    h = _inverse(k) if tangent0 is None or inverse0 is None else inverse0
+    tol = tolerance(q, k)  # fresh: the tangent was evaluated at the current q
     w = r / tol
     merit = math.sqrt(w @ w)
     done, it = _converged(r, tol, merit), 0
@@ -217,7 +227,7 @@ def newton(
             done = _converged(r, tol, merit)
         else:
             fresh, merit = False, m_try
-    return Equilibrium(q, r, tol, it, calls, tangents, k)
+    return Equilibrium(q, r, tol, it, calls, tangents, k, h)
 
 
 def _converged(r: np.ndarray, tol: np.ndarray, merit: float) -> bool:
