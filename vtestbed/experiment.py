@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from contextlib import nullcontext
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +44,7 @@ from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
 from .scenario import Scenario, pose_field
 from .world.physics import draw_readings, run_test_physics, test_rng
+from .world.physics_pool import physics_in_order
 from .world.repeats import draw_repeat_scans, repeat_rng
 from .world.rig import Rig
 from .world.sensors import ForceTorqueSensor
@@ -141,6 +142,28 @@ def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = 
     }
 
 
+def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
+    """The truth-world physics of ``jobs`` (group, index, pose, load), in order, on a few threads
+    (:mod:`vtestbed.world.physics_pool`); yields (TestPhysics, Timings of that test)."""
+    spare_rigs = [rig]  # the first thread takes this one (list.pop is atomic), the others build theirs
+
+    def make_rig() -> Rig:
+        if spare_rigs:
+            return spare_rigs.pop()
+        return Rig(scenario.robot, scenario.lab, truth=rig.truth, effects=scenario.effects)
+
+    def run(thread_rig: Rig, job):
+        _, i, q, load = job
+        test_timings = Timings()
+        phys = run_test_physics(
+            thread_rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
+            scenario.scanner.placement, test_timings, clearance="report",
+        )  # fmt: skip
+        return phys, test_timings
+
+    return physics_in_order(make_rig, run, jobs)
+
+
 def simulate(
     scenario: Scenario,
     out: str | Path,
@@ -170,7 +193,6 @@ def simulate(
         write_setup(out, dataset_setup(scenario, lab))
         noise = scenario.scanner.noise_model
         sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
-        placement = scenario.scanner.placement
         jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
         jobs += [
             ("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)
@@ -180,19 +202,26 @@ def simulate(
             from tqdm import tqdm
 
             bar = tqdm(total=len(jobs), desc="simulate", unit="test")
-        with TestWriter(out) as writer, RepeatWriter(out) if repeats else nullcontext() as repeat_writer:
+        with ExitStack() as stack:
+            writer = stack.enter_context(TestWriter(out))
+            repeat_writer = stack.enter_context(RepeatWriter(out)) if repeats else None
+            todos = {
+                test_id(g, i): [k for k in range(1, repeats + 1) if (test_id(g, i), k) not in repeat_writer.done]
+                if repeats else []
+                for g, i, _, _ in jobs
+            }  # fmt: skip
+            needed = [job for job in jobs if test_id(*job[:2]) not in writer.done or todos[test_id(*job[:2])]]
+
+            computed = stack.enter_context(closing(_scenario_physics(scenario, rig, needed)))
             for group, i, q, load in jobs:
                 tid = test_id(group, i)
-                todo = (
-                    [k for k in range(1, repeats + 1) if (tid, k) not in repeat_writer.done]
-                    if repeats
-                    else []
-                )
+                todo = todos[tid]
                 if tid not in writer.done or todo:
-                    phys = run_test_physics(
-                        rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
-                        placement, timings, label=pose_field(group, i),
-                    )  # fmt: skip
+                    phys, test_timings = next(computed)
+                    timings.physics += test_timings.physics  # summed over threads that overlap
+                    timings.scan += test_timings.scan
+                    if phys.clearance is not None:
+                        phys.clearance.enforce(pose_field(group, i), "warn")
                 if todo:  # before the test's row: a resumed run finds the test finished only with them
                     t2 = time.perf_counter()
                     rep_rng = repeat_rng(scenario.seed, group, i)

@@ -74,8 +74,10 @@ def run_test_physics(
     be run (scanner view, sensor range, convergence). ``clearance`` is the policy for a test that
     is not physically possible (a link in the table, the wire through a link, the scanner's view
     blocked; :mod:`vtestbed.world.clearance`): "raise" (:class:`~vtestbed.errors.ClearanceError`),
-    "warn" (:class:`~vtestbed.clearance.ClearanceWarning`, the default: scenario files) or "off";
-    ``label`` names the test in the message (e.g. ``poses.angles_deg[3]``).
+    "warn" (:class:`~vtestbed.clearance.ClearanceWarning`, the default: scenario files), "off",
+    or "report" (the findings only, in :attr:`TestPhysics.clearance`, for the caller to enforce:
+    :mod:`vtestbed.world.physics_pool`); ``label`` names the test in the message (e.g.
+    ``poses.angles_deg[3]``).
     """
     t0 = time.perf_counter()
     rig.command(q)
@@ -89,7 +91,8 @@ def run_test_physics(
     report = None
     if clearance != "off":  # before the second cast: a refused test costs no ray cast
         report = truth_clearance(rig, s1, scanner.pose_world[:3, 3])
-        report.enforce(label or describe_test(q, hook, anchor), clearance)
+        if clearance != "report":
+            report.enforce(label or describe_test(q, hook, anchor), clearance)
     t3 = time.perf_counter()
     hits1 = scanner.cast(rig.model, rig.data)
     if timings is not None:

@@ -270,7 +270,14 @@ class Rig:
             tol = check_range("tol", tol, 0.0, np.inf, "N*m")
             tolerance = lambda q, k: np.full(q.size, tol)  # noqa: E731
         return statics.newton(
-            self._residual, self.tangent_stiffness, tolerance, q0, max_iterations, tangent0, tangent0_exact, inverse0
+            self._residual,
+            self.tangent_stiffness,
+            tolerance,
+            q0,
+            max_iterations,
+            tangent0,
+            tangent0_exact,
+            inverse0,
         )
 
     def solve(self, max_iterations: int = 50, tol: float | None = None) -> RigState:
