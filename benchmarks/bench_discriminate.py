@@ -1,30 +1,69 @@
 """Named correctly before and after one round of discrimination tests, near the detection limit.
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
-     [--scenario scenarios/kr60_confusable.toml] [--out /tmp/bench_discriminate]
+     [--scenario scenarios/kr60_confusable.toml] [--factor F] [--always] [--workers 1]
+     [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
 ``scenarios/kr60_confusable.toml``: the paper's 20 tests with 3 repeats, link 2 compliance hidden
 at x0.2, about 50 % power for its own naming test) with that seed: simulate, diagnose, and when
-the diagnosis is confusable or marginal, propose ``--extra-tests`` T-optimal tests, simulate them
-in the same world and diagnose the combined dataset. Correct = the named labels are exactly the
-hidden effect's (``link_compliance(link 2)``); "family" = the named effect names are exactly
-``{link_compliance}``. Datasets go to ``--out/s<seed>`` (about 200 MB each; deleted unless --keep).
+the diagnosis is confusable or marginal (every seed with ``--always``: then a decisive diagnosis
+is confirmed or screened, :func:`vtestbed.design.discriminate.confirming_rivals`), propose
+``--extra-tests`` T-optimal tests, simulate them in the same world and diagnose the combined
+dataset. ``--factor F`` sets each hidden effect to F times its realistic size (x0.237 for link 2
+is the size at 85 % power, ``bench_discrepancy.py --limit-power 0.85``). Correct = the named labels
+are exactly the hidden effect's (``link_compliance(link 2)``); "family" = the named effect names
+are exactly ``{link_compliance}``. Datasets go to ``--out/s<seed>`` (about 200 MB each; deleted
+unless --keep).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import copy
 import json
+import multiprocessing
 import shutil
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from bench_discrepancy import SIZE_FIELDS, scaled  # benchmarks/ is on sys.path when run as a script
+
 from vtestbed.discovery import discover
-from vtestbed.scenario import load_scenario
+from vtestbed.scenario import parse_scenario, read_scenario_file
+from vtestbed.world.effects import EFFECTS
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def scenario_for(path: str, seed: int, factor: float | None):
+    """The scenario at ``path`` with ``seed``; with ``factor``, each hidden effect at ``factor`` times
+    its realistic default size (the factors ``bench_discrepancy.py --limit-power`` prints)."""
+    raw = copy.deepcopy(read_scenario_file(path)) | {"seed": seed}
+    for effect in raw.get("world", {}).get("effects", []) if factor is not None else []:
+        sized = scaled(EFFECTS[effect["name"]](), factor)
+        for name in SIZE_FIELDS[effect["name"]]:
+            value = getattr(sized, name)
+            effect[name] = list(value) if isinstance(value, tuple) else value
+    return parse_scenario(raw, Path(path))
+
+
+def run_seed(path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool) -> dict:
+    sc = scenario_for(path, seed, factor)
+    folder = Path(out) / f"s{seed}"
+    t0 = time.perf_counter()
+    r = discover(sc, folder, extra_tests=extra_tests, always=always)
+    after = r["named_after"] if r["named_after"] is not None else r["named_before"]
+    row = {"seed": seed, "before": r["named_before"], "after": after, "proposed": r["rivals"] is not None,
+           "reason": (r["rivals"] or {}).get("reason"), "rivals": (r["rivals"] or {}).get("rivals"),
+           "t_before": (r["proposal"] or {}).get("separation_before"),
+           "t_after": (r["proposal"] or {}).get("separation_after"),
+           "dbic_before": r.get("measured_before", {}).get("delta_bic"),
+           "dbic_after": r.get("measured_after", {}).get("delta_bic"), "wall_s": time.perf_counter() - t0}  # fmt: skip
+    if not keep:
+        shutil.rmtree(folder, ignore_errors=True)
+    return row
 
 
 def main() -> None:
@@ -34,28 +73,21 @@ def main() -> None:
     ap.add_argument("--first", type=int, default=1)
     ap.add_argument("--extra-tests", type=int, default=10)
     ap.add_argument("--expected", default="link_compliance(link 2)")
+    ap.add_argument("--factor", type=float, help="hidden effects at this multiple of their realistic size")
+    ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
+    ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
     args = ap.parse_args()
-    base = load_scenario(args.scenario)
     family = args.expected.split("(")[0]
+    seeds = range(args.first, args.first + args.seeds)
+    task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep)
     rows = []
-    for seed in range(args.first, args.first + args.seeds):
-        sc = dataclasses.replace(base, seed=seed, raw=base.raw | {"seed": seed})  # fingerprint follows
-        out = Path(args.out) / f"s{seed}"
-        t0 = time.perf_counter()
-        r = discover(sc, out, extra_tests=args.extra_tests)
-        after = r["named_after"] if r["named_after"] is not None else r["named_before"]
-        row = {"seed": seed, "before": r["named_before"], "after": after, "proposed": r["rivals"] is not None,
-               "reason": (r["rivals"] or {}).get("reason"), "rivals": (r["rivals"] or {}).get("rivals"),
-               "t_before": (r["proposal"] or {}).get("separation_before"),
-               "t_after": (r["proposal"] or {}).get("separation_after"),
-               "dbic_before": r.get("measured_before", {}).get("delta_bic"),
-               "dbic_after": r.get("measured_after", {}).get("delta_bic"), "wall_s": time.perf_counter() - t0}  # fmt: skip
-        rows.append(row)
-        print(json.dumps(row, default=float), flush=True)
-        if not args.keep:
-            shutil.rmtree(out, ignore_errors=True)
+    with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(run_seed, task[0], seed, *task[1:]) for seed in seeds]
+        for future in futures:  # in seed order
+            rows.append(future.result())
+            print(json.dumps(rows[-1], default=float), flush=True)
     n = len(rows)
 
     def score(key, fam=False):

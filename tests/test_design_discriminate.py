@@ -176,6 +176,28 @@ def test_rivals_from_report():
     assert disc.rivals_from_report(_report(stood_in))["round"] == 0  # without the drop, round 0 decides
 
 
+def test_confirming_rivals_after_a_decisive_diagnosis():
+    # a decisive name: the chosen term against the next candidates by BIC (df 0 rows skipped)
+    decisive = [_row("a", 1e-12, 100.0, True), _row("b", 1e-3, 130.0, True), _row("c", 0.5, 120.0, False),
+                _row("d", 0.9, 150.0, False), _row("e", 0.9, 160.0, False), _row("f", 0.9, 90.0, False, 0)]  # fmt: skip
+    rounds = [{"base": [], "chosen": "a", "runner_up": "b", "delta_bic": 30.0, "tests": decisive},
+              {"base": ["a"], "chosen": None, "runner_up": None, "delta_bic": None,
+               "tests": [_row("b", 0.9, 100.0, False)]}]  # fmt: skip
+    assert disc.rivals_from_report(_report(rounds)) is None
+    assert disc.confirming_rivals(_report(rounds)) == {
+        "reason": "confirm", "rivals": ["a", "c", "b", "d"], "base_terms": [], "round": 0}  # fmt: skip
+    # nothing named and nothing marginal: the baseline against the three strongest candidates
+    quiet = [_row("a", 0.3, 100.0, False), _row("b", 0.6, 97.0, False), _row("c", 0.9, 99.0, False),
+             _row("d", 0.9, 120.0, False)]  # fmt: skip
+    rnd = {"base": [], "chosen": None, "runner_up": None, "delta_bic": None, "tests": quiet}
+    assert disc.rivals_from_report(_report([rnd])) is None
+    assert disc.confirming_rivals(_report([rnd]))["rivals"] == [disc.BASELINE, "b", "c", "a"]
+    assert disc.confirming_rivals(_report([rnd]))["reason"] == "screen"
+    # a first name the stepwise search dropped is not confirmed, and leaves the rivals
+    report = _report(rounds) | {"dropped": {"a": "named in round 1, dropped in round 2"}}
+    assert disc.confirming_rivals(report)["rivals"] == [disc.BASELINE, "c", "b", "d"]
+
+
 def test_bad_input(lab_model):
     robot, kin, setup, pool, white, terms = lab_model
     ctx = disc.proposed_context(kin, setup, PAPER_LAB, pool[:4])

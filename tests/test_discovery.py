@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import json
 import tomllib
 from pathlib import Path
 from types import SimpleNamespace
@@ -160,6 +161,29 @@ def test_one_toml_writer_escapes_quotes_and_backslashes(run, tmp_path):
     path = tmp_path / "proposal.toml"
     path.write_text(text)
     assert load_scenario(path).n_tests == 3
+
+
+@pytest.mark.slow
+def test_always_confirms_a_decisive_name_with_a_round_of_tests(tmp_path):
+    """``always``: a decisive first name (a sensor misaligned by its realistic default) is put
+    against its closest rivals; the extra tests keep the name and widen its lead (refitted)."""
+    path = _small_scenario(tmp_path)
+    data = read_toml(path, "scenario file", ScenarioError)
+    data["world"]["effects"] = [{"name": "ft_misalignment"}]
+    path.write_text(toml_text(data))
+    result = discover(load_scenario(path), tmp_path / "out", extra_tests=3, n_poses=40, always=True)
+    rep0 = json.loads((tmp_path / "out" / "round0" / "diagnose" / "report.json").read_text())
+    assert disc.rivals_from_report(rep0) is None  # decisive: the default policy stops here
+    named = result["named_before"]
+    assert named == ["ft_misalignment"]
+    rivals = result["rivals"]
+    assert rivals["reason"] == "confirm" and rivals["rivals"][0] == named[0]
+    assert len(rivals["rivals"]) == disc.MAX_RIVALS and len(result["proposal"]["tests"]) == 3
+    assert result["named_after"][:1] == named[:1]
+    before, after = result["measured_before"], result["measured_after"]
+    assert before["best"] == after["best"] == named[0]
+    assert after["delta_bic"] > before["delta_bic"]
+    assert "**Confirming** (decisive, `--always`)" in (tmp_path / "out" / "discover.md").read_text()
 
 
 def test_cli_discover_refuses_bad_input(tmp_path, capsys):

@@ -248,6 +248,7 @@ def discover(
     n_poses: int = 150,
     tensions=disc.DEFAULT_TENSIONS_N,
     progress: bool = False,
+    always: bool = False,
 ) -> dict:
     """Simulate, diagnose, propose extra tests if undecided, simulate them, diagnose again.
 
@@ -267,6 +268,12 @@ def discover(
         Random poses of the candidate pool (each with every feasible hook, ring and tension).
     tensions : sequence of float
         Wire tensions of the candidates [N].
+    always : bool
+        Run the round of extra tests even when the diagnosis is decisive: they confirm the first
+        name against its closest rivals, or screen the baseline against the strongest candidates
+        (:func:`vtestbed.design.discriminate.confirming_rivals`). Lab time for certainty: a name
+        the first round got wrong outside the confusable band, or an effect just below the
+        level, is otherwise never questioned.
 
     Returns
     -------
@@ -296,6 +303,8 @@ def discover(
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
               "rivals": None, "proposal": None, "named_after": None}  # fmt: skip
     rivals = disc.rivals_from_report(rep0, alpha)
+    if rivals is None and always:
+        rivals = disc.confirming_rivals(rep0)
     if rivals is None:
         result["note"] = "the diagnosis is decisive: no discrimination tests needed"
         return _finish(result, out)
@@ -353,7 +362,9 @@ def markdown(result: dict) -> str:
     mb, ma = result["measured_before"], result["measured_after"]
     lines += [
         "",
-        f"**Undecided** ({r['reason']}): {names(r['rivals'])}"
+        {"confirm": "**Confirming** (decisive, `--always`)", "screen": "**Screening** (nothing named, `--always`)"}
+        .get(r["reason"], f"**Undecided** ({r['reason']})")
+        + f": {names(r['rivals'])}"
         + (f" on top of {names(r['base_terms'])}" if r["base_terms"] else "") + ".",
         f"**Proposed** {len(p['tests'])} extra tests ({p['criterion']}-optimal among {p['pool_size']} "
         f"candidates; {p['tests_refused_by_the_lab']} refused by the lab): predicted separation "

@@ -127,6 +127,30 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     return None
 
 
+def confirming_rivals(report: dict) -> dict:
+    """The rivals of a round of tests after a decisive diagnosis (``discover --always``).
+
+    The first round decides what is named first, so its closest models are the ones to test:
+    with a name, the chosen term against the next candidates by BIC (a wrong name clear of the
+    confusable band is then put to the test, reason "confirm"); without one, the baseline against
+    the strongest candidates (an effect just below the level, reason "screen"). Terms the
+    stepwise search dropped are left out. At most :data:`MAX_RIVALS` models.
+    """
+    dropped = set(report.get("dropped") or ())
+    rnd = report["rounds"][0]
+    ranked = [t["label"] for t in sorted(rnd["tests"], key=lambda t: t["bic"]) if t["df"] > 0]
+    chosen = rnd["chosen"] if rnd["chosen"] not in dropped else None
+    lead = chosen or BASELINE
+    rivals = [lead, *(label for label in ranked if label not in (lead, *dropped))][:MAX_RIVALS]
+    base_terms = [term for term in rnd["base"] if term not in dropped]
+    return {
+        "reason": "confirm" if chosen else "screen",
+        "rivals": rivals,
+        "base_terms": base_terms,
+        "round": 0,
+    }
+
+
 def test_pool(
     robot: RobotDescription,
     lab: LabSetup,
