@@ -100,7 +100,7 @@ def test_error_shrinks_as_one_over_sqrt_n(robot, lab):
 def test_bad_inputs(robot, lab, rng):
     jac, wrench = _tests(robot, lab, rng, 3)
     d = np.zeros((3, 6))
-    with pytest.raises(UnknownNameError, match="fgls, fgls6, fgls_pooled, ols, wls"):
+    with pytest.raises(UnknownNameError, match="fgls, fgls6, fgls_pooled, gls_floor, ols, wls"):
         identify(jac, wrench, d, method="lsq")
     slack = wrench.copy()
     slack[1] = 0.0
@@ -108,7 +108,7 @@ def test_bad_inputs(robot, lab, rng):
         identify(jac, slack, d)
     with pytest.raises(OutOfRangeError, match="shape"):
         identify(jac, wrench, np.zeros((2, 6)))
-    with pytest.raises(OutOfRangeError, match="wls needs displacement_cov|'wls' needs"):
+    with pytest.raises(OutOfRangeError, match="'wls' and 'gls_floor' need displacement_cov"):
         identify(jac, wrench, d, method="wls")
     with pytest.raises(OutOfRangeError, match=r"displacement_cov must be finite, \(6, 6\) or \(3, 6, 6\)"):
         identify(jac, wrench, d, method="wls", displacement_cov=np.eye(5))

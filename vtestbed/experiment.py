@@ -313,8 +313,13 @@ def identify_dataset(
         if bar:
             bar.close()  # ends the bar's line before an error is printed
     t1 = time.perf_counter()
+    floor = None
+    if method == "gls_floor":  # its weights: the repeat scans' noise floor (None without repeats)
+        from .researcher.noise_floor import estimate_noise_floor
+
+        floor = estimate_noise_floor(root, measurements)
     result = identify_measurements(
-        measurements, method=method, joint_names=load_robot(setup.robot).joint_names, strict=strict
+        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=floor
     )
     timings.process += t1 - t0
     timings.identify += time.perf_counter() - t1
@@ -340,7 +345,7 @@ def run(
     truth = comparison.read_truth(out / "dataset")
     joints = comparison.compare(result, truth)
     k_true = np.array([j["k_true"] for j in joints])
-    conv = report.convergence(measurements, scenario.method, result.joint_names)
+    conv = report.convergence(measurements, scenario.method, result.joint_names, result.displacement_cov)
     ranges = comparison.error_ranges(conv, k_true)
     val = report.validation(measurements, result.stiffness)
     files = {}

@@ -30,7 +30,7 @@ from .world.sensors import DEFAULT_NOISE_STD, NO_BIAS
 
 CONVENTIONS = ("dh", "controller")
 # "wls" needs a stated displacement covariance, which a scenario has not; "fgls_pooled": docs/uncertainty.md
-METHODS = ("ols", "fgls", "fgls_pooled")
+METHODS = ("ols", "fgls", "fgls_pooled", "gls_floor")  # "gls_floor" needs [scanner] repeats >= 2
 DEFAULT_METHOD = "fgls"
 DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
 POINT_SPACING_RANGE_M = (2e-5, 5e-3)
@@ -271,6 +271,12 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     effects = parse_effects(world.get("effects", []), f)
     ident = f.table(data.get("identification", {}), "identification", ("method",))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
+    if method == "gls_floor" and scanner.repeats < 2:
+        raise f.error(
+            "identification.method",
+            f"'gls_floor' weights with the repeat-scan noise floor and needs [scanner] repeats >= 2 "
+            f"(got {scanner.repeats}); 'fgls' needs none",
+        )
     val = f.table(
         data.get("validation", {}), "validation", ("convention", "angles_deg", "hook", "anchor", "tension_N")
     )

@@ -304,11 +304,39 @@ def trial(
     noise: ScanNoise | None | str = "scenario",
     sensor: ForceTorqueSensor | None = None,
 ) -> IdentificationResult:
-    """One virtual experiment with the first ``n_tests`` identification tests."""
+    """One virtual experiment with the first ``n_tests`` identification tests.
+
+    ``method="gls_floor"`` also draws the scenario's repeat scans of those tests (as ``simulate``
+    writes them: :func:`~vtestbed.world.repeats.repeat_rng`) for the noise floor it weights with.
+    """
     tests = prepared.identification_tests()[:n_tests]
     measurements = measure_trial(prepared, seed, tests, noise, sensor)
+    method = method or prepared.scenario.method
+    floor = _noise_floor(prepared, seed, tests, measurements, noise) if method == "gls_floor" else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(
-            measurements, method or prepared.scenario.method, prepared.scenario.robot.joint_names
+            measurements, method, prepared.scenario.robot.joint_names, noise_floor=floor
         )
+
+
+def _noise_floor(prepared: PreparedScenario, seed: int, tests, measurements, noise):
+    """The repeat-scan noise floor of one trial's tests (``scanner.repeats`` scans each)."""
+    from ..researcher.noise_floor import noise_floor_from_frames, scan_frames
+    from ..world.repeats import draw_repeat_scans, repeat_rng
+
+    sc = prepared.scenario
+    if isinstance(noise, str):
+        noise = sc.scanner.noise_model
+    if noise is None or sc.scanner.repeats < 2:
+        return None  # identify_measurements says what is missing
+    frames = {}
+    for t, m in zip(tests, measurements):
+        clouds = draw_repeat_scans(t.hits_unloaded, noise, repeat_rng(seed, t.group, t.index), sc.scanner.repeats,
+                                   sc.effects)  # fmt: skip
+        record = TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
+                            t.scanner_pose, Path(), Path())  # fmt: skip
+        frames[t.test_id] = scan_frames(
+            record, None, clouds, prepared.setup, prepared.kinematics, m.frame_unloaded
+        )
+    return noise_floor_from_frames(frames)

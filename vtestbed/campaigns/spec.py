@@ -13,7 +13,7 @@ base scenario)::
     ft_noise_scale = [1.0]                  # x the F/T sensor's noise std
     n_tests = [5, 10, 20]                   # tests per identification
     pose_set = ["kappa_regions", "random", "design_optimal", "scenario"]
-    method = ["fgls"]                       # "ols" (the paper's) or "fgls"
+    method = ["fgls"]                       # "ols" (the paper's), "fgls" or "gls_floor" (repeats >= 2)
 
     [campaign.pose_sets]   # optional: how generated pose sets are drawn (see posesets.py)
     pool = 40
@@ -49,7 +49,7 @@ from ..world.scan_noise import ScanNoise, scaled_noise
 POSE_SETS = ("scenario", "kappa_regions", "random", "design_optimal")
 POSE_SET_IDS = {name: i for i, name in enumerate(POSE_SETS)}
 NESTED_POSE_SETS = ("scenario", "kappa_regions", "random")  # n tests = the first n of one list
-METHODS = ("ols", "fgls")  # "wls" needs a stated displacement covariance: not a campaign axis
+METHODS = ("ols", "fgls", "gls_floor")  # "wls" needs a stated covariance; "gls_floor" takes the floor from repeats
 AXES = ("pose_set", "n_tests", "scanner_noise_scale", "ft_noise_scale", "method")  # canonical order
 CAMPAIGN_KEYS = ("seed", "trials", "paired", "axes", "pose_sets", "description")
 DESIGN_CRITERIA = ("D", "A", "E", "minimax")
@@ -207,6 +207,10 @@ def _axis_values(name: str, values, scenario: Scenario, f: Fields) -> tuple:
             out.append(f.choice(v, item, POSE_SETS))
         elif name == "method":
             out.append(f.choice(v, item, METHODS))
+            if out[-1] == "gls_floor" and scenario.scanner.repeats < 2:
+                raise f.error(
+                    item, "'gls_floor' needs repeat scans: set [scanner] repeats >= 2 in the scenario"
+                )
         elif name == "n_tests":
             out.append(f.integer(v, item, 2, 500))
         elif name == "scanner_noise_scale":

@@ -7,7 +7,7 @@ from pathlib import Path
 from ..files import dumps
 from .args import output_dir, print_notes
 
-IDENTIFY_METHODS = ("ols", "fgls", "fgls_pooled")
+IDENTIFY_METHODS = ("ols", "fgls", "fgls_pooled", "gls_floor")
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 

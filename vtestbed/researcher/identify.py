@@ -26,6 +26,12 @@ Estimators (``fgls_pooled`` and ``fgls6`` in :mod:`.gls_full`, docs/uncertainty.
 ``fgls6``
     GLS with that full 6 x 6 noise, iterated; analytic covariance, optimistic (21 numbers from
     the residuals). Less efficient than ``fgls`` at 12-20 tests; for comparison only.
+``gls_floor``
+    GLS with the full 6 x 6 displacement-noise covariance of the repeat-scan noise floor
+    (:mod:`.noise_floor`, passed as ``displacement_cov``): the weights come from scans of a static
+    block, not from the residuals, so they are as good as the repeats (75 samples for 25 tests
+    with 3 repeats) and carry the correlation between translation and rotation that ``fgls``
+    ignores. Analytic covariance ``(A^T Sigma^-1 A)^-1``. Needs repeat scans.
 
 Stiffness standard deviations follow from the compliance covariance by the delta method,
 ``std(k_j) = std(c_j) / c_j^2``.
@@ -39,14 +45,15 @@ milliseconds (``benchmarks/bench_identify.py``).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
 from .gls_full import POOLED_METHODS, fgls_full, fgls_pooled_cov
 
-METHODS = ("ols", "wls", "fgls", *POOLED_METHODS)
+METHODS = ("ols", "wls", "fgls", *POOLED_METHODS, "gls_floor")
+KNOWN_COV_METHODS = ("wls", "gls_floor")  # the displacement covariance is given, not estimated
 ILL_CONDITIONED = 1e3  # condition number of the joints' weighted displacement contributions
 
 
@@ -79,9 +86,16 @@ class IdentificationResult:
     condition_number: float  # of the weighted system scaled by the estimated compliances
     chi2_reduced: float
     warnings: tuple[str, ...] = field(default=())
+    # (6, 6) or (T, 6, 6): the given displacement covariance of "wls" and "gls_floor", else None
+    displacement_cov: np.ndarray | None = None
 
     def as_dict(self) -> dict:
-        return {
+        extra = (
+            {}
+            if self.displacement_cov is None
+            else {"displacement_cov": np.asarray(self.displacement_cov).tolist()}
+        )
+        return extra | {
             "method": self.method,
             "n_tests": self.n_tests,
             "joint_names": list(self.joint_names),
@@ -166,7 +180,10 @@ def _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench
 def _wls_whitening(displacement_cov, n_tests: int) -> np.ndarray:
     """Per-test whitening blocks L^-1 (T, 6, 6) of Sigma_t = L L^T, checked."""
     if displacement_cov is None:
-        raise OutOfRangeError("method 'wls' needs displacement_cov, (T, 6, 6) or (6, 6)")
+        raise OutOfRangeError(
+            "methods 'wls' and 'gls_floor' need displacement_cov, (T, 6, 6) or (6, 6) "
+            "(for 'gls_floor' the repeat-scan noise floor's covariance)"
+        )
     cov = np.asarray(displacement_cov, dtype=float)
     if cov.shape not in ((6, 6), (n_tests, 6, 6)) or not np.all(np.isfinite(cov)):
         raise OutOfRangeError(
@@ -199,8 +216,8 @@ def identify(
     jacobians : (T, 6, n) Jacobians at the block reference point, in the frame of the data
     wrenches : (T, 6) external wrench change (loaded minus unloaded) at that point [N, N*m]
     displacements : (T, 6) measured displacement of that point [m, m, m, rad, rad, rad]
-    method : {"ols", "wls", "fgls", "fgls6", "fgls_pooled"}
-    displacement_cov : (T, 6, 6) or (6, 6), required for ``"wls"`` [m^2, m*rad, rad^2]
+    method : {"ols", "wls", "fgls", "fgls6", "fgls_pooled", "gls_floor"}
+    displacement_cov : (T, 6, 6) or (6, 6), required for ``"wls"`` and ``"gls_floor"`` [m^2, m*rad, rad^2]
     min_wrench : float
         A test whose force change is below this [N] has a slack wire and is refused.
     test_ids : (T,) str, optional
@@ -212,8 +229,10 @@ def identify(
     refits work on per-component normal equations (see :func:`_jackknife_cov`).
     """
     a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench, test_ids)
-    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
+    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method in KNOWN_COV_METHODS else None
     result = _fit(a, d, method, names, whiten, iterations)
+    if whiten is not None:
+        result = replace(result, displacement_cov=np.asarray(displacement_cov, dtype=float))
     for note in result.warnings:
         warnings.warn(note, stacklevel=2)
     return result
@@ -239,7 +258,7 @@ def identify_prefixes(
     (the same arithmetic); its notes are in its ``warnings`` field, not emitted as warnings.
     """
     a, d, names = _checked(jacobians, wrenches, displacements, method, joint_names, min_wrench, test_ids)
-    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method == "wls" else None
+    whiten = _wls_whitening(displacement_cov, d.shape[0]) if method in KNOWN_COV_METHODS else None
     return [
         _fit(a[: 6 * n], d[:n], method, names, None if whiten is None else whiten[:n], iterations)
         for n in range(1, d.shape[0] + 1)
@@ -250,7 +269,7 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
     """One identification on checked, stacked inputs: A (6 T, n), d (T, 6)."""
     n_tests, n = d.shape[0], a.shape[1]
     d_flat = d.reshape(-1)
-    if method == "wls":
+    if method in KNOWN_COV_METHODS:
         whiten = wls_whiten
         c, cov_c = _solve_weighted(_apply(whiten, a), _apply(whiten, d_flat))
     elif method == "fgls6":

@@ -165,10 +165,24 @@ def stacked(tests: list[TestMeasurement]) -> tuple[np.ndarray, np.ndarray, np.nd
             np.array([m.displacement for m in tests]))  # fmt: skip
 
 
+NO_FLOOR = (
+    "identification method 'gls_floor' weights the tests with the repeat-scan noise floor, and there "
+    "are no repeat scans: record 2 or more scans of the unloaded block per test (repeats.csv; "
+    "[scanner] repeats = 3 in a scenario), or use method 'fgls', which needs none"
+)
+
+
 def identify_measurements(
-    measurements: list[TestMeasurement], method: str = "fgls", joint_names=None, strict: bool = False
+    measurements: list[TestMeasurement],
+    method: str = "fgls",
+    joint_names=None,
+    strict: bool = False,
+    noise_floor=None,
 ) -> IdentificationResult:
     """Identify from the ``identification`` group of reduced tests.
+
+    ``noise_floor`` (a :class:`~vtestbed.researcher.noise_floor.NoiseFloor`) is required by
+    ``method="gls_floor"``, which weights with its covariance, and ignored by the others.
 
     Tests that no wire load could produce (:func:`motionless_tests` and the checks of
     :mod:`.plausibility`) are named in the result's warnings, or, with ``strict``, raise an
@@ -178,7 +192,14 @@ def identify_measurements(
     if not tests:
         raise DatasetError("the dataset has no test in group 'identification'")
     ids = tuple(m.test_id for m in tests)
-    result = identify(*stacked(tests), method=method, joint_names=joint_names, test_ids=ids)
+    cov = None
+    if method == "gls_floor":
+        if noise_floor is None:
+            raise DatasetError(NO_FLOOR)
+        cov = noise_floor.covariance
+    result = identify(
+        *stacked(tests), method=method, displacement_cov=cov, joint_names=joint_names, test_ids=ids
+    )
     notes = []
     still = motionless_tests(tests, result.compliance)
     if still:

@@ -27,8 +27,10 @@ from .measure import TestMeasurement, predict_displacement, stacked
 PAPER_FIRST_N = 6  # the paper's Table 5 uses the estimates from 6 to 20 tests
 
 
-def convergence(measurements: list[TestMeasurement], method: str, joint_names) -> dict:
+def convergence(measurements: list[TestMeasurement], method: str, joint_names, displacement_cov=None) -> dict:
     """Estimates using the first n identification tests, n = 1..N (paper Figure 10).
+
+    ``displacement_cov``: the given covariance of ``"wls"`` and ``"gls_floor"`` (the result's).
 
     Returns ``{"n": [1..N], "stiffness": N lists of (n_joints,) [N*m/rad], "stiffness_std": the
     same}``; validation tests are ignored. O(N^2) in time (module docstring).
@@ -40,8 +42,9 @@ def convergence(measurements: list[TestMeasurement], method: str, joint_names) -
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # small-n fits are expected to be ill-conditioned
         fits = identify_prefixes(
-            *stacked(tests), method=method, joint_names=joint_names, test_ids=tuple(m.test_id for m in tests)
-        )
+            *stacked(tests), method=method, displacement_cov=displacement_cov, joint_names=joint_names,
+            test_ids=tuple(m.test_id for m in tests),
+        )  # fmt: skip
     for n, res in enumerate(fits, start=1):
         rows["n"].append(n)
         rows["stiffness"].append(res.stiffness.tolist())
