@@ -15,7 +15,11 @@ std and its variation between trials (``rep CV``, std / mean), the z-score ``(k 
 std and mean, the Cramer-Rao bound (:mod:`vtestbed.design.crlb`) and the efficiency CRLB^2 / MSE.
 Honest: z-score std within [0.8, 1.25] (docs/uncertainty.md).
 
-Run: .venv/bin/python benchmarks/bench_design_uncertainty.py [--trials 40] [--cache DIR]
+``gls_floor`` weights with the repeat-scan noise floor of the tests it uses: every trial also
+draws ``--repeats`` repeat scans per test (:func:`~vtestbed.world.repeats.repeat_rng`, as
+``simulate`` writes them) and caches their fitted frames.
+
+Run: .venv/bin/python benchmarks/bench_design_uncertainty.py [--trials 40] [--cache DIR] [--workers 2]
 (one worker; about 4 s per trial of the six scenarios on this machine, plus about a minute for the
 random set's feasibility checks; a second run with the same --cache and --trials only identifies, 40 s).
 """
@@ -23,27 +27,31 @@ random set's feasibility checks; a second run with the same --cache and --trials
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import subprocess
 import sys
 import time
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 import vtestbed as vt
 from vtestbed.campaigns import posesets
-from vtestbed.campaigns.montecarlo import measure_trial, prepare
+from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.campaigns.spec import pose_set_defaults
 from vtestbed.design import crlb
 from vtestbed.design import optimal as design
 from vtestbed.researcher.identify import identify
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.measure import stacked
+from vtestbed.researcher.noise_floor import noise_floor_from_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "kr60_paper.toml"
-ESTIMATORS = ("fgls", "fgls_pooled", "fgls6")
+ESTIMATORS = ("fgls", "fgls_pooled", "fgls6", "gls_floor")
+REPEATS = 3  # repeat scans per test for gls_floor's floor
 DESIGNS = {"minimax_200N": 200.0, "minimax_limit": None}  # None: the lab's limit (--tension default)
 HONEST = (0.8, 1.25)
 
@@ -81,18 +89,23 @@ def test_sets(cache: Path, pool: int) -> dict:
 
 
 def measure(name: str, scenario, trials: int, cache: Path) -> dict:
-    """Cached (trials, T, ...) Jacobians, wrenches, displacements and the truth of one set."""
-    path = cache / f"{name}_trials{trials}.npz"
+    """Cached (trials, T, ...) Jacobians, wrenches, displacements, the fitted frames of each
+    test's unloaded scan and its REPEATS repeats (trials, T, REPEATS + 1, 4, 4), and the truth."""
+    path = cache / f"{name}_trials{trials}_r{REPEATS}.npz"
     if path.exists():
         return dict(np.load(path))
     t0 = time.perf_counter()
     prepared = prepare(scenario)
-    jac, wr, disp = [], [], []
+    noise = scenario.scanner.noise_model
+    jac, wr, disp, frames = [], [], [], []
     for i in range(trials):
-        j, w, d = stacked(measure_trial(prepared, 16_000 + i))
+        ms = measure_trial(prepared, 16_000 + i)
+        j, w, d = stacked(ms)
         jac.append(j), wr.append(w), disp.append(d)
+        per_test = repeat_frames(prepared, 16_000 + i, prepared.identification_tests(), ms, noise, REPEATS)
+        frames.append(list(per_test.values()))
     out = dict(jacobians=np.array(jac), wrenches=np.array(wr), displacements=np.array(disp),
-               k_true=prepared.stiffness_true)  # fmt: skip
+               repeat_frames=np.array(frames), k_true=prepared.stiffness_true)  # fmt: skip
     np.savez(path, **out)
     print(
         f"  {name}: {len(prepared.tests)} tests x {trials} trials in {time.perf_counter() - t0:.0f} s",
@@ -120,12 +133,18 @@ def bound(scenario, n: int, k_true: np.ndarray) -> np.ndarray:
 
 
 def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.ndarray]:
-    """(trials, n_joints) estimates and reported stds [N*m/rad] from each trial's first n tests."""
+    """(trials, n_joints) estimates and reported stds [N*m/rad] from each trial's first n tests
+    (``gls_floor``: weighted with the noise floor of those n tests' repeat scans)."""
     ks, stds = [], []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for j, w, d in zip(data["jacobians"], data["wrenches"], data["displacements"]):
-            res = identify(j[:n], w[:n], d[:n], method=method)
+        for j, w, d, fr in zip(
+            data["jacobians"], data["wrenches"], data["displacements"], data["repeat_frames"]
+        ):
+            cov = None
+            if method == "gls_floor":
+                cov = noise_floor_from_frames({f"T{t + 1:03d}": list(fr[t]) for t in range(n)}).covariance
+            res = identify(j[:n], w[:n], d[:n], method=method, displacement_cov=cov)
             ks.append(res.stiffness), stds.append(res.stiffness_std)
     return np.array(ks), np.array(stds)
 
@@ -153,11 +172,16 @@ def main() -> None:
     parser.add_argument("--cache", default=str(ROOT / "runs" / "bench_design_uncertainty"),
                         help="directory for the designs and the measured trials (default %(default)s)")  # fmt: skip
     parser.add_argument("--methods", default=",".join(ESTIMATORS), help="estimators (default %(default)s)")
+    parser.add_argument("--workers", type=int, default=1, help="processes measuring the sets")
     args = parser.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     methods = args.methods.split(",")
     sets = test_sets(cache, args.pool)
+    if args.workers > 1:  # measure (and cache) the sets in parallel; the report below reads the cache
+        with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            list(pool.map(measure, list(sets), [s for s, _ in sets.values()], [args.trials] * len(sets),
+                          [cache] * len(sets)))  # fmt: skip
     se = 1 / np.sqrt(2 * (args.trials - 1))
     print(f"{args.trials} trials per set; a z-score std from them is uncertain by about {se * 100:.0f} %; "
           f"honest: z std in [{HONEST[0]}, {HONEST[1]}]")  # fmt: skip

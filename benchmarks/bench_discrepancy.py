@@ -64,8 +64,7 @@ from scipy.optimize import brentq  # noqa: E402
 from scipy.stats import chi2 as chi2_dist  # noqa: E402
 from scipy.stats import ncx2  # noqa: E402
 
-from vtestbed.campaigns.montecarlo import measure_trial, prepare  # noqa: E402
-from vtestbed.dataset import TestRecord  # noqa: E402
+from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
 from vtestbed.errors import VtestbedError  # noqa: E402
 from vtestbed.researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import (  # noqa: E402
@@ -76,14 +75,13 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     validation_gap,
 )
 from vtestbed.researcher.identify import stack  # noqa: E402
-from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames, scan_frames  # noqa: E402
+from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
 warnings.filterwarnings("ignore", message=r".* is not physically possible")
 from vtestbed.researcher.statics import ExactStatics  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
-from vtestbed.world.repeats import draw_repeat_scans, repeat_rng  # noqa: E402
 from vtestbed.world.sensors import ForceTorqueSensor  # noqa: E402
 from vtestbed.world.truth import load_truth  # noqa: E402
 
@@ -192,11 +190,6 @@ def prepared_world(name: str | None, factor: float, validation: bool = True):
     return _PREPARED[key]
 
 
-def record_of(t) -> TestRecord:
-    return TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
-                      t.scanner_pose, Path(), Path())  # fmt: skip
-
-
 # ---------------------------------------------------------------------------- one trial
 def model_context(measurements, prepared, statics: str) -> ModelContext:
     """As ``discrepancy.diagnose`` builds it: ``statics="exact"`` (its default) takes the clean
@@ -208,15 +201,10 @@ def model_context(measurements, prepared, statics: str) -> ModelContext:
 def trial(prepared, pool, seed: int, statics: str) -> dict:
     """One dataset's worth of noise (seed ``seed``) through the researcher's workflow."""
     scenario = prepared.scenario
-    kin = prepared.kinematics
     t0 = time.perf_counter()
     ms = measure_trial(prepared, seed, list(prepared.tests))  # test_rng + draw_readings per test
     t1 = time.perf_counter()
-    frames = {}
-    for t, m in zip(prepared.tests, ms):
-        clouds = draw_repeat_scans(t.hits_unloaded, scenario.scanner.noise_model,
-                                   repeat_rng(seed, t.group, t.index), REPEATS, scenario.effects)  # fmt: skip
-        frames[t.test_id] = scan_frames(record_of(t), None, clouds, prepared.setup, kin, m.frame_unloaded)
+    frames = repeat_frames(prepared, seed, list(prepared.tests), ms, scenario.scanner.noise_model, REPEATS)
     floor = noise_floor_from_frames(frames)
     t2 = time.perf_counter()
     ident = [m for m in ms if m.group == "identification"]
@@ -279,15 +267,12 @@ def noise_free(prepared, tests=None):
 def reference_floor(repeats: int) -> NoiseFloor:
     """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED), with its
     sample count (the whitener divides out the chi^2 inflation of an estimated floor)."""
-    prepared, _ = prepared_world(None, 1.0)
-    frames = {}
+    prepared, _ = prepared_world(None, 1.0)  # the clean world: no effects in the repeats
     ms = measure_trial(prepared, REF_SEED, list(prepared.tests))
-    for t, m in zip(prepared.tests, ms):
-        clouds = draw_repeat_scans(t.hits_unloaded, prepared.scenario.scanner.noise_model,
-                                   repeat_rng(REF_SEED, t.group, t.index), repeats)  # fmt: skip
-        frames[t.test_id] = scan_frames(record_of(t), None, clouds, prepared.setup, prepared.kinematics,
-                                        m.frame_unloaded)  # fmt: skip
-    return noise_floor_from_frames(frames)
+    noise = prepared.scenario.scanner.noise_model
+    return noise_floor_from_frames(
+        repeat_frames(prepared, REF_SEED, list(prepared.tests), ms, noise, repeats)
+    )
 
 
 def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:

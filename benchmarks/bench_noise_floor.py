@@ -43,12 +43,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from vtestbed.campaigns.montecarlo import measure_trial, prepare  # noqa: E402
+from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
 from vtestbed.dataset import TestRecord  # noqa: E402
 from vtestbed.researcher.measure import identify_measurements, measure_arrays  # noqa: E402
-from vtestbed.researcher.noise_floor import COMPONENTS, noise_floor_from_frames, scan_frames  # noqa: E402
+from vtestbed.researcher.noise_floor import COMPONENTS, noise_floor_from_frames  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
-from vtestbed.world.repeats import draw_repeat_scans, repeat_rng  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLERANCE = 0.20
@@ -83,14 +82,7 @@ def seed_frames(prepared, seed: int, max_repeats: int):
     scenario = prepared.scenario
     tests = prepared.identification_tests()
     measurements = measure_trial(prepared, seed, tests)
-    frames = {}
-    for t, m in zip(tests, measurements):
-        rng = repeat_rng(seed, t.group, t.index)
-        clouds = draw_repeat_scans(
-            t.hits_unloaded, scenario.scanner.noise_model, rng, max_repeats, scenario.effects
-        )
-        frames[t.test_id] = scan_frames(record_of(t), None, clouds, prepared.setup, prepared.kinematics,
-                                        frame_unloaded=m.frame_unloaded)  # fmt: skip
+    frames = repeat_frames(prepared, seed, tests, measurements, scenario.scanner.noise_model, max_repeats)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = identify_measurements(measurements, "fgls", scenario.robot.joint_names)

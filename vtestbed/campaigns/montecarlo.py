@@ -322,21 +322,39 @@ def trial(
 
 def _noise_floor(prepared: PreparedScenario, seed: int, tests, measurements, noise):
     """The repeat-scan noise floor of one trial's tests (``scanner.repeats`` scans each)."""
-    from ..researcher.noise_floor import noise_floor_from_frames, scan_frames
-    from ..world.repeats import draw_repeat_scans, repeat_rng
+    from ..researcher.noise_floor import noise_floor_from_frames
 
     sc = prepared.scenario
-    if isinstance(noise, str):
-        noise = sc.scanner.noise_model
+    noise = sc.scanner.noise_model if isinstance(noise, str) else noise
     if noise is None or sc.scanner.repeats < 2:
         return None  # identify_measurements says what is missing
+    return noise_floor_from_frames(
+        repeat_frames(prepared, seed, tests, measurements, noise, sc.scanner.repeats)
+    )
+
+
+def repeat_frames(
+    prepared: PreparedScenario, seed: int, tests, measurements, noise: ScanNoise, repeats: int
+) -> dict[str, list[np.ndarray]]:
+    """Per test, the fitted frames (4, 4) of its unloaded scan and ``repeats`` repeat scans.
+
+    The repeats are drawn as ``simulate`` writes them (:func:`~vtestbed.world.repeats.repeat_rng`
+    of trial ``seed``) with the world's effects, and fitted by the researcher's pipeline
+    (:func:`~vtestbed.researcher.noise_floor.scan_frames`); ``measurements`` are the trial's
+    reduced tests (their unloaded frames are reused).
+    """
+    from ..researcher.noise_floor import scan_frames
+    from ..world.repeats import draw_repeat_scans, repeat_rng
+
+    effects = prepared.scenario.effects
     frames = {}
     for t, m in zip(tests, measurements):
-        clouds = draw_repeat_scans(t.hits_unloaded, noise, repeat_rng(seed, t.group, t.index), sc.scanner.repeats,
-                                   sc.effects)  # fmt: skip
+        clouds = draw_repeat_scans(
+            t.hits_unloaded, noise, repeat_rng(seed, t.group, t.index), repeats, effects
+        )
         record = TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
                             t.scanner_pose, Path(), Path())  # fmt: skip
         frames[t.test_id] = scan_frames(
             record, None, clouds, prepared.setup, prepared.kinematics, m.frame_unloaded
         )
-    return noise_floor_from_frames(frames)
+    return frames
