@@ -92,6 +92,25 @@ def test_tighten_reaches_target_tension(rig, anchor, hook, tension):
     assert abs(ea * (length - state.wire_rest_length) / state.wire_rest_length - tension) < 0.1
 
 
+def test_tighten_from_the_unloaded_tangent_lands_where_a_cold_tighten_does(rig):
+    """A test tightens from its unloaded equilibrium's tangent and inverse (no tangent call); the
+    same tighten from a cold start (tangent evaluated fresh) is the reference: same equilibrium
+    to round-off, in fewer residual calls than the wire's ~85 of wave 1."""
+    rig.hook("hook_x", "ring_5")
+    unloaded = rig.solve()
+    tangents0, calls0 = rig.tangent_calls, rig.residual_calls
+    warm = rig.tighten(200.0)
+    assert rig.tangent_calls == tangents0  # the unloaded tangent served
+    assert rig.residual_calls - calls0 <= 8
+    rig.slacken_wire()  # forgets the tangent
+    rig._q_guess = unloaded.qpos_all.copy()
+    cold = rig.tighten(200.0)
+    assert rig.tangent_calls > tangents0
+    np.testing.assert_allclose(warm.qpos_all, cold.qpos_all, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(warm.sensor_wrench, cold.sensor_wrench, rtol=1e-10, atol=1e-9)
+    assert abs(warm.wire_tension - 200.0) < 1e-8 and abs(cold.wire_tension - 200.0) < 1e-8
+
+
 def _tool_side_load_by_hand(lab, flange_pose, tension, hook_world, anchor_world, gravity=9.81):
     """Weight of what hangs below the sensor plus the wire force, in the sensor frame."""
     sensor, block = lab.sensor, lab.block
