@@ -31,6 +31,7 @@ from pathlib import Path
 from bench_discrepancy import SIZE_FIELDS, scaled  # benchmarks/ is on sys.path when run as a script
 
 from vtestbed.discovery import discover
+from vtestbed.errors import VtestbedError
 from vtestbed.scenario import parse_scenario, read_scenario_file
 from vtestbed.world.effects import EFFECTS
 
@@ -53,7 +54,12 @@ def run_seed(path: str, seed: int, factor, extra_tests: int, always: bool, out: 
     sc = scenario_for(path, seed, factor)
     folder = Path(out) / f"s{seed}"
     t0 = time.perf_counter()
-    r = discover(sc, folder, extra_tests=extra_tests, always=always)
+    try:
+        r = discover(sc, folder, extra_tests=extra_tests, always=always)
+    except VtestbedError as exc:  # one seed's failure is a result (scored as not named), not the run's end
+        shutil.rmtree(folder, ignore_errors=True)
+        return {"seed": seed, "before": None, "after": None, "proposed": None,
+                "error": f"{type(exc).__name__}: {exc}", "wall_s": time.perf_counter() - t0}  # fmt: skip
     after = r["named_after"] if r["named_after"] is not None else r["named_before"]
     row = {"seed": seed, "before": r["named_before"], "after": after, "proposed": r["rivals"] is not None,
            "reason": (r["rivals"] or {}).get("reason"), "rivals": (r["rivals"] or {}).get("rivals"),
@@ -91,12 +97,16 @@ def main() -> None:
     n = len(rows)
 
     def score(key, fam=False):
+        ok = [r for r in rows if "error" not in r]
         if fam:
-            return sum({x.split("(")[0] for x in r[key]} == {family} for r in rows)
-        return sum(r[key] == [args.expected] for r in rows)
+            return sum({x.split("(")[0] for x in r[key]} == {family} for r in ok)
+        return sum(r[key] == [args.expected] for r in ok)
 
-    print(f"\n{n} seeds, {sum(r['proposed'] for r in rows)} with discrimination tests "
-          f"({args.extra_tests} each); expected {args.expected}")  # fmt: skip
+    errors = [r for r in rows if "error" in r]
+    print(f"\n{n} seeds, {sum(bool(r['proposed']) for r in rows)} with discrimination tests "
+          f"({args.extra_tests} each), {len(errors)} failed (scored as not named); expected {args.expected}")  # fmt: skip
+    for r in errors:
+        print(f"  seed {r['seed']}: {r['error']}")
     print(f"named correctly: before {score('before')}/{n}, after {score('after')}/{n}")
     print(f"right family:    before {score('before', True)}/{n}, after {score('after', True)}/{n}")
     print(f"wall per seed: {sum(r['wall_s'] for r in rows) / n:.1f} s")

@@ -216,3 +216,6 @@ def test_cli_choices_match_the_library():
     opts = {a.dest: a for a in sub._actions}
     assert tuple(opts["criterion"].choices) == CRITERIA
     assert opts["extra_tests"].default == DEFAULT_EXTRA_TESTS
+    import inspect
+
+    assert opts["n_poses"].default == inspect.signature(discover).parameters["n_poses"].default

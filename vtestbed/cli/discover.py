@@ -14,7 +14,7 @@ def _cmd_discover(args) -> int:
 
     result = discover(
         load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
-        criterion=args.criterion, progress=not args.quiet, always=args.always,
+        criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
     )  # fmt: skip
     if args.json:
         print(dumps(result, indent=1, default=float))
@@ -41,6 +41,9 @@ def register(sub) -> None:
     )
     p.add_argument("--criterion", default="T", choices=("T", "difference"),
                    help="T-optimal (models refitted, default) or the whitened difference of the fitted models")  # fmt: skip
+    p.add_argument("--n-poses", type=int, default=150,
+                   help="random poses of the candidate pool, each with every feasible hook, ring and tension "
+                        "(default %(default)s)")  # fmt: skip
     p.add_argument("--always", action="store_true",
                    help="run the extra tests even after a decisive diagnosis: confirm the first name against "
                         "its closest rivals, or screen for an effect just below the level")  # fmt: skip

@@ -385,7 +385,7 @@ def propose(
     k: int,
     criterion: str = "T",
     feasible=None,
-    max_rounds: int = 10,
+    max_rounds: int = 60,
 ) -> Proposal:
     """Choose ``k`` of ``tests`` (candidate tests) that separate ``rivals`` (see :func:`rivals_from_report`).
 
@@ -393,7 +393,8 @@ def propose(
     noise floor and ``pool_candidates`` the candidate terms the diagnosis used. ``feasible``
     (optional, ``CandidateTest -> bool``) is the lab's answer to "can this test be run?" (the
     scanner must see the block): a chosen test it refuses is excluded and the choice is redone,
-    ``max_rounds`` times at most.
+    ``max_rounds`` times at most (the tests that separate best are often at the edge of what the
+    lab allows: one world of ``bench_discriminate`` needed 46 exclusions).
     """
     tests = tuple(tests)
     hyps = fit_hypotheses(ctx, white, rivals["base_terms"], rivals["rivals"], pool_candidates)
@@ -411,7 +412,9 @@ def propose(
     else:
         raise OutOfRangeError(
             f"after {max_rounds} choices the lab still refused some of the {k} proposed tests "
-            f"({len(excluded)} refused): enlarge the candidate pool"
+            f"({len(excluded)} of {len(tests)} candidates refused: the scanner cannot see the block, or "
+            "the sensor leaves its range): draw more candidate poses (discover --n-poses, now "
+            f"a pool of {len(tests)} tests) or ask for fewer tests (--extra-tests)"
         )
     return Proposal(rivals["reason"], tuple(rivals["base_terms"]), tuple(rivals["rivals"]),
                     tuple(tests[i] for i in choice.indices), choice, len(tests),
