@@ -40,8 +40,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def scenario_for(path: str, seed: int, factor: float | None):
     """The scenario at ``path`` with ``seed``; with ``factor``, each hidden effect at ``factor`` times
-    its realistic default size (the factors ``bench_discrepancy.py --limit-power`` prints)."""
+    its realistic default size (the factors ``bench_discrepancy.py --limit-power`` prints); with
+    ``factor = 0`` the clean world (nothing hidden)."""
     raw = copy.deepcopy(read_scenario_file(path)) | {"seed": seed}
+    if factor == 0:
+        raw.pop("world", None)
+        return parse_scenario(raw, Path(path))
     for effect in raw.get("world", {}).get("effects", []) if factor is not None else []:
         sized = scaled(EFFECTS[effect["name"]](), factor)
         for name in SIZE_FIELDS[effect["name"]]:
@@ -79,13 +83,15 @@ def main() -> None:
     ap.add_argument("--first", type=int, default=1)
     ap.add_argument("--extra-tests", type=int, default=10)
     ap.add_argument("--expected", default="link_compliance(link 2)")
-    ap.add_argument("--factor", type=float, help="hidden effects at this multiple of their realistic size")
+    ap.add_argument("--factor", type=float,
+                    help="hidden effects at this multiple of their realistic size (0: the clean world, "
+                         "scored with --expected nothing)")  # fmt: skip
     ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
     args = ap.parse_args()
-    family = args.expected.split("(")[0]
+    family = set() if args.expected == "nothing" else {args.expected.split("(")[0]}
     seeds = range(args.first, args.first + args.seeds)
     task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep)
     rows = []
@@ -99,8 +105,8 @@ def main() -> None:
     def score(key, fam=False):
         ok = [r for r in rows if "error" not in r]
         if fam:
-            return sum({x.split("(")[0] for x in r[key]} == {family} for r in ok)
-        return sum(r[key] == [args.expected] for r in ok)
+            return sum({x.split("(")[0] for x in r[key]} == family for r in ok)
+        return sum(r[key] == ([] if args.expected == "nothing" else [args.expected]) for r in ok)
 
     errors = [r for r in rows if "error" in r]
     print(f"\n{n} seeds, {sum(bool(r['proposed']) for r in rows)} with discrimination tests "
