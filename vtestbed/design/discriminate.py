@@ -30,7 +30,7 @@ from ..dataset import DatasetSetup
 from ..errors import OutOfRangeError, UnknownNameError
 from ..lab import DEFAULT_TENSION_N, LabSetup
 from ..researcher.candidates import Candidate, ModelContext
-from ..researcher.diagnose import CONFUSABLE_BIC, Whitener, fit_model
+from ..researcher.diagnose import Whitener, fit_model
 from ..researcher.identify import stack
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement
@@ -38,11 +38,15 @@ from ..robots import RobotDescription
 from .kappa import inv_kappa_batch
 from .optimal import CandidateTest, candidate_tests, nominal_wrench
 from .regions import PoseConstraints
+from .rivals import BASELINE, MARGINAL_FACTOR, MAX_RIVALS, confirming_rivals, rivals_from_report
+
+__all__ = [  # the rivals' selection lives in .rivals; re-exported: discover and the tests use it here
+    "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "Choice", "Hypothesis", "PairBlocks", "Proposal",
+    "choose", "confirming_rivals", "fit_hypotheses", "pair_blocks", "proposed_context", "propose",
+    "rivals_from_report", "test_pool",
+]  # fmt: skip
 
 CRITERIA = ("T", "difference")
-BASELINE = "baseline"  # the label of the model without a further term
-MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
-MAX_RIVALS = 4  # models in one discrimination design
 NESTED_TOL = 1e-9  # T_ab below this fraction of ||y_a||^2 over the whole pool: b nests a
 DEFAULT_TENSIONS_N = (DEFAULT_TENSION_N, 2 * DEFAULT_TENSION_N)
 # The campaigns' default lab constraints on the block (vtestbed.campaigns.spec.PoseSetOptions).
@@ -82,73 +86,6 @@ def fit_hypotheses(ctx, white: Whitener, base_terms, rivals, pool) -> list[Hypot
         fit = fit_model(ctx, white, terms)
         out.append(Hypothesis(label, tuple(terms), fit.compliance, fit.x, fit.chi2))
     return out
-
-
-def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
-    """The models a diagnosis leaves undecided, from ``diagnose``'s report; None when it is decisive.
-
-    A candidate is *plausible* in a round when its Bonferroni-adjusted p-value is below
-    :data:`MARGINAL_FACTOR` times ``alpha``. The rounds are read in order:
-
-    * *confusable*: the runner-up is within :data:`CONFUSABLE_BIC` of the chosen term; the rivals
-      are the plausible candidates that close to it (the chosen one first);
-    * *marginal*, a weak name: the chosen term's adjusted p-value is above ``alpha /``
-      :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
-      within :data:`CONFUSABLE_BIC` of the chosen one;
-    * *marginal*, nothing named: the round's baseline and the plausible candidates within
-      :data:`CONFUSABLE_BIC` of the best of them.
-
-    A round whose chosen term the stepwise search later dropped (``report["dropped"]``: it stood in
-    for terms named after it) is skipped, and dropped terms leave every round's baseline. At most
-    ``MAX_RIVALS`` models. Returns ``{"reason", "base_terms", "rivals", "round"}``.
-    """
-    alpha = report["alpha"] if alpha is None else alpha
-    dropped = set(report.get("dropped") or ())
-    for k, rnd in enumerate(report["rounds"]):
-        if rnd["chosen"] in dropped:
-            continue
-        m = len(rnd["tests"])
-        plausible = sorted(
-            (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] * m < MARGINAL_FACTOR * alpha),
-            key=lambda t: t["bic"],
-        )
-        chosen = next((t for t in rnd["tests"] if t["label"] == rnd["chosen"]), None)
-        lead = chosen or (plausible[0] if plausible else None)
-        if lead is None:
-            return None
-        close = [lead["label"]] + [
-            t["label"] for t in plausible if t is not lead and t["bic"] - lead["bic"] < CONFUSABLE_BIC
-        ]
-        base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
-        if chosen and rnd["delta_bic"] is not None and rnd["delta_bic"] < CONFUSABLE_BIC:
-            return {"reason": "confusable", "rivals": close[:MAX_RIVALS], **base}
-        if chosen is None or chosen["p_value"] * m > alpha / MARGINAL_FACTOR:
-            return {"reason": "marginal", "rivals": [BASELINE, *close][:MAX_RIVALS], **base}
-    return None
-
-
-def confirming_rivals(report: dict) -> dict:
-    """The rivals of a round of tests after a decisive diagnosis (``discover --always``).
-
-    The first round decides what is named first, so its closest models are the ones to test:
-    with a name, the chosen term against the next candidates by BIC (a wrong name clear of the
-    confusable band is then put to the test, reason "confirm"); without one, the baseline against
-    the strongest candidates (an effect just below the level, reason "screen"). Terms the
-    stepwise search dropped are left out. At most :data:`MAX_RIVALS` models.
-    """
-    dropped = set(report.get("dropped") or ())
-    rnd = report["rounds"][0]
-    ranked = [t["label"] for t in sorted(rnd["tests"], key=lambda t: t["bic"]) if t["df"] > 0]
-    chosen = rnd["chosen"] if rnd["chosen"] not in dropped else None
-    lead = chosen or BASELINE
-    rivals = [lead, *(label for label in ranked if label not in (lead, *dropped))][:MAX_RIVALS]
-    base_terms = [term for term in rnd["base"] if term not in dropped]
-    return {
-        "reason": "confirm" if chosen else "screen",
-        "rivals": rivals,
-        "base_terms": base_terms,
-        "round": 0,
-    }
 
 
 def test_pool(
