@@ -49,11 +49,8 @@ from ..world.scan_noise import ScanNoise, scaled_noise
 POSE_SETS = ("scenario", "kappa_regions", "random", "design_optimal")
 POSE_SET_IDS = {name: i for i, name in enumerate(POSE_SETS)}
 NESTED_POSE_SETS = ("scenario", "kappa_regions", "random")  # n tests = the first n of one list
-METHODS = (
-    "ols",
-    "fgls",
-    "gls_floor",
-)  # "wls" needs a stated covariance; "gls_floor" takes the floor from repeats
+# "wls" needs a stated displacement covariance: not a campaign axis; "gls_floor" needs repeats
+METHODS = ("ols", "fgls", "gls_floor")
 AXES = ("pose_set", "n_tests", "scanner_noise_scale", "ft_noise_scale", "method")  # canonical order
 CAMPAIGN_KEYS = ("seed", "trials", "paired", "axes", "pose_sets", "description")
 DESIGN_CRITERIA = ("D", "A", "E", "minimax")
