@@ -1,7 +1,7 @@
 """Named correctly before and after one round of discrimination tests, near the detection limit.
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
-     [--scenario scenarios/kr60_confusable.toml] [--factor F] [--always] [--workers 1]
+     [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--workers 1]
      [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
@@ -12,8 +12,9 @@ is confirmed or screened, :func:`vtestbed.design.discriminate.confirming_rivals`
 ``--extra-tests`` T-optimal tests, simulate them in the same world and diagnose the combined
 dataset. ``--factor F`` sets each hidden effect to F times its realistic size (x0.237 for link 2
 is the size at 85 % power, ``bench_discrepancy.py --limit-power 0.85``). Correct = the named labels
-are exactly the hidden effect's (``link_compliance(link 2)``); "family" = the named effect names
-are exactly ``{link_compliance}``. Datasets go to ``--out/s<seed>`` (about 200 MB each; deleted
+are exactly ``--expected`` (default ``link_compliance(link 2)``; ``a+b`` for two hidden effects,
+``nothing`` for the clean world, ``--factor 0``); "family" = the named effect names are exactly
+those of ``--expected``. Datasets go to ``--out/s<seed>`` (about 200 MB each; deleted
 unless --keep).
 """
 
@@ -38,11 +39,14 @@ from vtestbed.world.effects import EFFECTS
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def scenario_for(path: str, seed: int, factor: float | None):
+def scenario_for(path: str, seed: int, factor: float | None, world: tuple[str, ...] = ()):
     """The scenario at ``path`` with ``seed``; with ``factor``, each hidden effect at ``factor`` times
     its realistic default size (the factors ``bench_discrepancy.py --limit-power`` prints); with
-    ``factor = 0`` the clean world (nothing hidden)."""
+    ``factor = 0`` the clean world (nothing hidden); ``world`` (effect names) replaces the hidden
+    effects by those effects at their realistic defaults."""
     raw = copy.deepcopy(read_scenario_file(path)) | {"seed": seed}
+    if world:
+        raw["world"] = {"effects": [{"name": name} for name in world]}
     if factor == 0:
         raw.pop("world", None)
         return parse_scenario(raw, Path(path))
@@ -54,8 +58,10 @@ def scenario_for(path: str, seed: int, factor: float | None):
     return parse_scenario(raw, Path(path))
 
 
-def run_seed(path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool) -> dict:
-    sc = scenario_for(path, seed, factor)
+def run_seed(
+    path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool, world=()
+) -> dict:
+    sc = scenario_for(path, seed, factor, world)
     folder = Path(out) / f"s{seed}"
     t0 = time.perf_counter()
     try:
@@ -82,18 +88,23 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first", type=int, default=1)
     ap.add_argument("--extra-tests", type=int, default=10)
-    ap.add_argument("--expected", default="link_compliance(link 2)")
+    ap.add_argument("--expected", default="link_compliance(link 2)",
+                    help="the label(s) a correct diagnosis names: 'a+b' for two, 'nothing' for the clean world")  # fmt: skip
     ap.add_argument("--factor", type=float,
                     help="hidden effects at this multiple of their realistic size (0: the clean world, "
                          "scored with --expected nothing)")  # fmt: skip
+    ap.add_argument("--world", default="", help="comma-separated effects to hide instead of the scenario's "
+                    "(realistic sizes), e.g. link_compliance,nonlinear_joint")  # fmt: skip
     ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
     args = ap.parse_args()
-    family = set() if args.expected == "nothing" else {args.expected.split("(")[0]}
+    expected = set() if args.expected == "nothing" else set(args.expected.split("+"))  # "a+b": both hidden
+    family = {label.split("(")[0] for label in expected}
     seeds = range(args.first, args.first + args.seeds)
-    task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep)
+    world = tuple(name.strip() for name in args.world.split(",") if name.strip())
+    task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep, world)
     rows = []
     with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(run_seed, task[0], seed, *task[1:]) for seed in seeds]
@@ -106,7 +117,7 @@ def main() -> None:
         ok = [r for r in rows if "error" not in r]
         if fam:
             return sum({x.split("(")[0] for x in r[key]} == family for r in ok)
-        return sum(r[key] == ([] if args.expected == "nothing" else [args.expected]) for r in ok)
+        return sum(len(r[key]) == len(expected) and set(r[key]) == expected for r in ok)
 
     errors = [r for r in rows if "error" in r]
     print(f"\n{n} seeds, {sum(bool(r['proposed']) for r in rows)} with discrimination tests "
