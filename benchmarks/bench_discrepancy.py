@@ -533,7 +533,7 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         fa_naming = sum(bool(r.get("names")) or "error" in r for r in clean) / len(clean)
         fa_detect = sum(r.get("p_detect", 0) < ALPHA for r in clean) / len(clean)
         k = round(fa_naming * len(clean))
-        upper = _upper95(k, len(clean))
+        upper = clopper_pearson(k, len(clean))[1]
         print(f"- false alarm on the clean world (anything named): {fa_naming * 100:.1f} % ({k} of {len(clean)}; "
               f"95 % upper bound {upper * 100:.1f} %), target <= 1 %; detection test rejects the paper's model on "
               f"{fa_detect * 100:.1f} %")  # fmt: skip
@@ -586,11 +586,13 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
               f"physics (prepare) {t_prep:.0f} s of worker time in total")  # fmt: skip
 
 
-def _upper95(k: int, n: int) -> float:
-    """Clopper-Pearson 95 % upper bound of a binomial rate with k of n."""
+def clopper_pearson(k: int, n: int) -> tuple[float, float]:
+    """95 % Clopper-Pearson interval of a binomial rate with k of n (bench_two_effects uses it too)."""
     from scipy.stats import beta
 
-    return 1.0 if k >= n else float(beta.ppf(0.975, k + 1, n - k))
+    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
+    hi = 1.0 if k >= n else float(beta.ppf(0.975, k + 1, n - k))
+    return lo, hi
 
 
 # ---------------------------------------------------------------------------- main

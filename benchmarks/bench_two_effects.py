@@ -61,15 +61,6 @@ def tally(pair: str, records: list[dict]) -> dict:
     return out
 
 
-def clopper_pearson(k: int, n: int) -> tuple[float, float]:
-    """95 % interval of a binomial rate with k of n."""
-    from scipy.stats import beta
-
-    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
-    hi = 1.0 if k >= n else float(beta.ppf(0.975, k + 1, n - k))
-    return lo, hi
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=50)
@@ -109,7 +100,7 @@ def main() -> None:
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |")
     for pair in pairs:
         t, n = tally(pair, results[pair]), len(results[pair])
-        lo, hi = clopper_pearson(t["both"], n)
+        lo, hi = bench.clopper_pearson(t["both"], n)
         print(f"| {pair.replace('+', ' + ')} | {n} | {100 * t['both'] / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] "
               f"| {t['one']} | {t['wrong']} | {t['nothing']} | {t['error']} "
               f"| {', '.join(f'{k} ({v})' for k, v in t['extra'].most_common(3))} "
