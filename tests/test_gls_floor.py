@@ -80,3 +80,23 @@ def test_without_repeat_scans_every_entry_point_says_what_to_record(tmp_path, ca
     }
     with pytest.raises(ScenarioError, match=r"campaign\.axes\.method\[1\]: 'gls_floor' needs repeat scans"):
         parse_campaign(campaign, Path("c.toml"))
+
+
+def test_identify_estimates_the_floor_once_and_reports_the_one_it_weighted_with(dataset, capsys, monkeypatch):
+    import json
+
+    from vtestbed.researcher import noise_floor
+
+    _, root = dataset
+    calls = []
+    real = noise_floor.estimate_noise_floor
+    monkeypatch.setattr(noise_floor, "estimate_noise_floor", lambda *a, **k: calls.append(1) or real(*a, **k))
+    assert cli_main.main(["identify", str(root), "--method", "gls_floor", "--json", "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(calls) == 1  # the weights and the report share one estimate
+    # reference: the floor refitted from the dataset's clouds alone (no reduced tests passed in)
+    independent = real(root)
+    np.testing.assert_allclose(out["displacement_cov"], independent.covariance, rtol=1e-12, atol=1e-30)
+    np.testing.assert_allclose(
+        out["noise_floor"]["covariance"], independent.covariance, rtol=1e-12, atol=1e-30
+    )

@@ -6,8 +6,9 @@ import warnings
 import numpy as np
 import pytest
 
+from vtestbed.researcher.fgls import fgls
 from vtestbed.researcher.gls_full import fgls_batch, shared_covariance
-from vtestbed.researcher.identify import _fgls, identify, stack
+from vtestbed.researcher.identify import identify, stack
 
 K = np.array([2.2e6, 9.0e5, 1.1e6, 6.4e4, 2.5e4, 2.0e4])  # N*m/rad, the KR60's order of magnitude
 C = 1.0 / K
@@ -66,7 +67,7 @@ def test_fgls_batch_repeats_identify_fgls():
     d = draws(a3, drift_noise(), 5, 4) - a3 @ C  # noise only, as the bootstrap passes it
     batch = fgls_batch(a3, d, 5)
     for b in range(5):
-        c, _, _ = _fgls(a3.reshape(-1, 6), d[b].reshape(-1), 9, 6, 5)
+        c, _, _ = fgls(a3.reshape(-1, 6), d[b].reshape(-1), 9, 6, 5)
         np.testing.assert_allclose(batch[b], c, rtol=1e-9)
 
 

@@ -43,6 +43,7 @@ from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
 from .scenario import Scenario, pose_field
+from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
 from .world.repeats import draw_repeat_scans, repeat_rng
@@ -190,6 +191,7 @@ def simulate(
         truth = _start_truth(out, scenario, rig, replace_stale)
         repeats = scenario.scanner.repeats
         truth["repeats"] = repeats
+        truth_file = TruthFile(out / TRUTH_FILE, truth)
         write_setup(out, dataset_setup(scenario, lab))
         noise = scenario.scanner.noise_model
         sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
@@ -253,7 +255,7 @@ def simulate(
                     )
                     ply.write_ply(paths[0], cloud0)
                     ply.write_ply(paths[1], cloud1)
-                    truth["tests"][tid] = {
+                    truth_file.add(tid, {
                         "group": group,
                         "hook": load.hooks[i],
                         "anchor": load.anchors[i],
@@ -268,8 +270,7 @@ def simulate(
                         "sensor_wrench_true_loaded": s1.sensor_wrench.tolist(),
                         "scanner_pose_world": scanner.pose_world.tolist(),
                         "points": [len(cloud0), len(cloud1)],
-                    }
-                    write_json_atomic(out / TRUTH_FILE, truth)
+                    })  # fmt: skip
                     # the row is written last: it marks the test as finished
                     writer.append(TestRecord(tid, group, np.degrees(q), w0, w1, scanner.pose_world, *paths))
                     t5 = time.perf_counter()
@@ -293,6 +294,25 @@ def identify_dataset(
     ``strict``: implausible tests (a block that did not move, moved against or far beyond its
     load, a force that misses the block) raise instead of warning.
     """
+    setup, measurements, result, _ = identify_dataset_with_floor(
+        root, method, progress, timings, strict, floor=method == "gls_floor"
+    )
+    return setup, measurements, result
+
+
+def identify_dataset_with_floor(
+    root: str | Path,
+    method: str = "fgls",
+    progress: bool = False,
+    timings: Timings | None = None,
+    strict: bool = False,
+    floor: bool = True,
+):
+    """:func:`identify_dataset` plus the dataset's repeat-scan noise floor, estimated once.
+
+    Returns (setup, measurements, IdentificationResult, NoiseFloor or None); the floor is None
+    without repeat scans or with ``floor=False`` (unless ``method`` weights with it: "gls_floor").
+    """
     timings = timings or Timings()
     bar = None
 
@@ -313,17 +333,17 @@ def identify_dataset(
         if bar:
             bar.close()  # ends the bar's line before an error is printed
     t1 = time.perf_counter()
-    floor = None
-    if method == "gls_floor":  # its weights: the repeat scans' noise floor (None without repeats)
+    noise_floor = None
+    if floor or method == "gls_floor":  # gls_floor's weights (None without repeats: it says so)
         from .researcher.noise_floor import estimate_noise_floor
 
-        floor = estimate_noise_floor(root, measurements)
+        noise_floor = estimate_noise_floor(root, measurements)
     result = identify_measurements(
-        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=floor
+        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor
     )
     timings.process += t1 - t0
     timings.identify += time.perf_counter() - t1
-    return setup, measurements, result
+    return setup, measurements, result, noise_floor
 
 
 def run(

@@ -274,8 +274,7 @@ def measure_trial(
 
     ``noise="scenario"`` uses the scenario's scanner noise; ``None`` is a perfect scanner.
     """
-    if isinstance(noise, str):
-        noise = prepared.scenario.scanner.noise_model
+    noise = _scan_noise(prepared, noise)
     sensor = sensor or prepared.sensor
     kin = prepared.kinematics
     out = []
@@ -294,6 +293,11 @@ def measure_trial(
         record = TestRecord(t.test_id, t.group, np.degrees(t.q), w0, w1, t.scanner_pose, Path(), Path())
         out.append(measure_arrays(record, cloud0, cloud1, prepared.setup, kin))
     return out
+
+
+def _scan_noise(prepared: PreparedScenario, noise: ScanNoise | None | str) -> ScanNoise | None:
+    """``noise="scenario"``: the scenario's scanner noise model; otherwise ``noise`` itself."""
+    return prepared.scenario.scanner.noise_model if isinstance(noise, str) else noise
 
 
 def trial(
@@ -325,7 +329,7 @@ def _noise_floor(prepared: PreparedScenario, seed: int, tests, measurements, noi
     from ..researcher.noise_floor import noise_floor_from_frames
 
     sc = prepared.scenario
-    noise = sc.scanner.noise_model if isinstance(noise, str) else noise
+    noise = _scan_noise(prepared, noise)
     if noise is None or sc.scanner.repeats < 2:
         return None  # identify_measurements says what is missing
     return noise_floor_from_frames(

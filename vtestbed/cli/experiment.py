@@ -62,14 +62,12 @@ def _cmd_identify(args) -> int:
     if args.model is not None:
         return _identify_with_model(args)
     from ..comparison import compare, read_truth
-    from ..experiment import identify_dataset
-    from ..researcher.noise_floor import estimate_noise_floor
+    from ..experiment import identify_dataset_with_floor
 
-    setup, measurements, result = identify_dataset(
+    setup, measurements, result, floor = identify_dataset_with_floor(  # floor: None without repeats
         args.dataset, args.method, progress=not args.quiet, strict=args.strict
     )
     out = {"dataset": str(args.dataset), **result.as_dict()}
-    floor = estimate_noise_floor(args.dataset, measurements)  # None without repeat scans
     if floor is not None:
         out["noise_floor"] = floor.as_dict()
     truth = None if args.no_truth else read_truth(args.dataset)

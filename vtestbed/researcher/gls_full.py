@@ -163,7 +163,7 @@ def fgls_batch(a3: np.ndarray, d: np.ndarray, iterations: int = 5) -> np.ndarray
     """Per-component FGLS (``identify``'s ``fgls`` iteration) of B data sets at once.
 
     ``a3`` (T, 6, n), ``d`` (B, T, 6) [m | rad]; returns the compliances (B, n). The same
-    iteration as :func:`vtestbed.researcher.identify._fgls` (unit weights first, one variance per
+    iteration as :func:`vtestbed.researcher.fgls.fgls` (unit weights first, one variance per
     component from the residual sums over ``T - n / 6``, floored at 1e-9 of the largest) on the
     normal equations, equilibrated to a unit diagonal. The residual sums are expanded
     (``sum d^2 - 2 c.g + c^T G c`` per component, O(B n^2)): pass noise (the fit is equivariant,
@@ -186,7 +186,7 @@ def fgls_batch(a3: np.ndarray, d: np.ndarray, iterations: int = 5) -> np.ndarray
         ss = np.clip(ss, 0.0, None)
         std = np.sqrt(ss / dof_share)
         if 6 * n_tests <= n:
-            break  # an exact fit: no information on the noise, unit weights (as _fgls)
+            break  # an exact fit: no information on the noise, unit weights (as fgls.fgls)
         exact = ~np.any(std > 0, axis=1, keepdims=True)  # a noise-free draw: unit weights
         floored = np.maximum(std, 1e-9 * std.max(axis=1, keepdims=True))
         w = np.where(exact, 1.0, 1.0 / np.where(exact, 1.0, floored) ** 2)
