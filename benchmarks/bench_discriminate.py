@@ -29,7 +29,11 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from bench_discrepancy import SIZE_FIELDS, scaled  # benchmarks/ is on sys.path when run as a script
+from bench_discrepancy import (  # benchmarks/ is on sys.path when run as a script
+    SIZE_FIELDS,
+    clopper_pearson,
+    scaled,
+)
 
 from vtestbed.discovery import discover
 from vtestbed.errors import VtestbedError
@@ -101,7 +105,6 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true")
     args = ap.parse_args()
     expected = set() if args.expected == "nothing" else set(args.expected.split("+"))  # "a+b": both hidden
-    family = {label.split("(")[0] for label in expected}
     seeds = range(args.first, args.first + args.seeds)
     world = tuple(name.strip() for name in args.world.split(",") if name.strip())
     task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep, world)
@@ -111,21 +114,41 @@ def main() -> None:
         for future in futures:  # in seed order
             rows.append(future.result())
             print(json.dumps(rows[-1], default=float), flush=True)
-    n = len(rows)
+    summarize(rows, expected, args.expected, args.extra_tests)
 
-    def score(key, fam=False):
-        ok = [r for r in rows if "error" not in r]
+
+def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int) -> None:
+    """Print the scores of ``rows`` (one per seed, as ``run_seed`` returns them): named correctly
+    before and after the round with the after-rate's 95 % interval, the right family, and the
+    same per round type (confusable, marginal, confirm, screen)."""
+    n = len(rows)
+    family = {x.split("(")[0] for x in expected}
+
+    def right(r, key, fam=False):
+        if "error" in r:
+            return False
         if fam:
-            return sum({x.split("(")[0] for x in r[key]} == family for r in ok)
-        return sum(len(r[key]) == len(expected) and set(r[key]) == expected for r in ok)
+            return {x.split("(")[0] for x in r[key]} == family
+        return len(r[key]) == len(expected) and set(r[key]) == expected
+
+    def score(key, fam=False, among=rows):
+        return sum(right(r, key, fam) for r in among)
 
     errors = [r for r in rows if "error" in r]
     print(f"\n{n} seeds, {sum(bool(r['proposed']) for r in rows)} with discrimination tests "
-          f"({args.extra_tests} each), {len(errors)} failed (scored as not named); expected {args.expected}")  # fmt: skip
+          f"({extra_tests} each), {len(errors)} failed (scored as not named); expected {label}")  # fmt: skip
     for r in errors:
         print(f"  seed {r['seed']}: {r['error']}")
-    print(f"named correctly: before {score('before')}/{n}, after {score('after')}/{n}")
+    lo, hi = clopper_pearson(score("after"), n)
+    print(f"named correctly: before {score('before')}/{n}, after {score('after')}/{n} "
+          f"(95 % interval {lo * 100:.0f}-{hi * 100:.0f} %)")  # fmt: skip
     print(f"right family:    before {score('before', True)}/{n}, after {score('after', True)}/{n}")
+    for reason in ("confusable", "marginal", "confirm", "screen"):
+        among = [r for r in rows if r.get("reason") == reason]
+        if among:
+            print(
+                f"  {reason} rounds: {score('before', among=among)} -> {score('after', among=among)} of {len(among)}"
+            )
     print(f"wall per seed: {sum(r['wall_s'] for r in rows) / n:.1f} s")
 
 
