@@ -29,6 +29,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
 from bench_discrepancy import (  # benchmarks/ is on sys.path when run as a script
     SIZE_FIELDS,
     clopper_pearson,
@@ -80,7 +81,9 @@ def run_seed(
            "t_before": (r["proposal"] or {}).get("separation_before"),
            "t_after": (r["proposal"] or {}).get("separation_after"),
            "dbic_before": r.get("measured_before", {}).get("delta_bic"),
-           "dbic_after": r.get("measured_after", {}).get("delta_bic"), "wall_s": time.perf_counter() - t0}  # fmt: skip
+           "dbic_after": r.get("measured_after", {}).get("delta_bic"),
+           "val_before": r.get("validation_gap_before"), "val_after": r.get("validation_gap_after"),
+           "wall_s": time.perf_counter() - t0}  # fmt: skip
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
     return row
@@ -149,6 +152,13 @@ def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int
             print(
                 f"  {reason} rounds: {score('before', among=among)} -> {score('after', among=among)} of {len(among)}"
             )
+    gaps = [(r["val_before"]["baseline"], r["val_before"]["named"], (r["val_after"] or r["val_before"])["named"])
+            for r in rows if r.get("val_before")]  # fmt: skip
+    if gaps:
+        base, before, after = np.median(np.array(gaps), axis=0)
+        print(f"validation error / noise floor (median of {len(gaps)}): paper's model {base:.2f}, named before "
+              f"{before:.2f} (excess removed {(base - before) / (base - 1) * 100:.0f} %), after the round "
+              f"{after:.2f} ({(base - after) / (base - 1) * 100:.0f} %)")  # fmt: skip
     print(f"wall per seed: {sum(r['wall_s'] for r in rows) / n:.1f} s")
 
 

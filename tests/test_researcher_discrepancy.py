@@ -14,6 +14,7 @@ import pytest
 from scipy.stats import chi2 as chi2_dist
 
 from vtestbed import cli
+from vtestbed.discovery import validation_summary
 from vtestbed.errors import DatasetError, UnknownNameError
 from vtestbed.experiment import dataset_setup, simulate
 from vtestbed.researcher.candidates import ModelContext, candidates
@@ -159,6 +160,12 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert fit["before"] > 1.5 and fit["after"] < 1.15
     val = report["validation"]
     assert val["after"]["ratio_to_floor"] < val["before"]["ratio_to_floor"]
+    # discover's summary of it: the RMS of the per-test whitened errors, without and with the terms
+    summary = validation_summary(report)
+    for key, side in (("baseline", "before"), ("named", "after")):
+        rms = np.sqrt(np.mean(np.square(val[side]["per_test"])))
+        assert summary[key] == pytest.approx(rms, rel=1e-12)
+    assert validation_summary({"validation": {}}) is None  # a dataset without validation tests
     for name in ("report.json", "report.md", "gap.png", "patterns.png", "effect.png", "model.json"):
         assert (tmp_path / "diag" / name).stat().st_size > 100
     # the named effect's figure: what the terms explain is the drop of chi^2, and it is most of it

@@ -301,7 +301,8 @@ def discover(
     rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose")
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
-              "rivals": None, "proposal": None, "named_after": None}  # fmt: skip
+              "rivals": None, "proposal": None, "named_after": None,
+              "validation_gap_before": validation_summary(rep0), "validation_gap_after": None}  # fmt: skip
     rivals = disc.rivals_from_report(rep0, alpha)
     if rivals is None and always:
         rivals = disc.confirming_rivals(rep0)
@@ -336,8 +337,18 @@ def discover(
     ctx1, white1, pool1 = _researcher_view(ds1)
     result["measured_after"] = measured_separation(ctx1, white1, pool1, rivals)
     result["named_after"] = rep1["named"]
+    result["validation_gap_after"] = validation_summary(rep1)
     result["confusable_after"] = rep1["confusable"]
     return _finish(result, out)
+
+
+def validation_summary(report: dict) -> dict | None:
+    """The validation tests' prediction error over the noise floor (1 = the noise), with the paper's
+    model ("baseline") and with the terms the diagnosis named ("named"); None without validation tests."""
+    val = report.get("validation") or {}
+    if not val.get("before"):
+        return None
+    return {"baseline": val["before"]["ratio_to_floor"], "named": val["after"]["ratio_to_floor"]}
 
 
 def _finish(result: dict, out: Path) -> dict:
@@ -375,6 +386,10 @@ def markdown(result: dict) -> str:
         "",
         f"**After**: named {names(result['named_after'])}.",
     ]  # fmt: skip
+    vb, va = result.get("validation_gap_before"), result.get("validation_gap_after")
+    if vb and va:
+        lines.append(f"Validation prediction error over the noise floor: {vb['baseline']:.2f} with the paper's "
+                     f"model, {vb['named']:.2f} with the terms named before, {va['named']:.2f} after.")  # fmt: skip
     for c in result["confusable_after"]:
         lines.append(f"- still `{c['chosen']}` or `{c['runner_up']}` (BIC {c['delta_bic']:.1f} apart)")
     return "\n".join(lines) + "\n"
