@@ -44,7 +44,6 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
-from vtestbed.dataset import TestRecord  # noqa: E402
 from vtestbed.researcher.measure import identify_measurements, measure_arrays  # noqa: E402
 from vtestbed.researcher.noise_floor import COMPONENTS, noise_floor_from_frames  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
@@ -54,18 +53,13 @@ TOLERANCE = 0.20
 UNITS = np.array([1e6] * 3 + [1e6] * 3)  # um, urad
 
 
-def record_of(t) -> TestRecord:
-    return TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
-                      t.scanner_pose, Path(), Path())  # fmt: skip
-
-
 def truth_covariance(prepared, draws: int) -> tuple[np.ndarray, np.ndarray]:
     """(T, 6, 6) per-test covariance of a measured displacement, and their mean over the tests."""
     noise = prepared.scenario.scanner.noise_model
     per_test = []
     for t in prepared.identification_tests():
         rng = np.random.default_rng(np.random.SeedSequence(977, spawn_key=(t.index,)))
-        record = record_of(t)
+        record = t.record()
         d = np.array([
             measure_arrays(record, noise.apply(t.hits_unloaded, rng), noise.apply(t.hits_loaded, rng),
                            prepared.setup, prepared.kinematics).displacement

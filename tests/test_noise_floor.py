@@ -134,9 +134,7 @@ def test_dataset_floor_is_the_in_memory_reduction_of_the_world_draws(tmp_path):
         cloud0 = draw_readings(t.hits_unloaded, t.hits_loaded, t.wrench_unloaded, t.wrench_loaded, noise,
                                prepared.sensor, physics.test_rng(3, t.group, t.index))[0]  # fmt: skip
         repeats = draw_repeat_scans(t.hits_unloaded, noise, repeat_rng(3, t.group, t.index), 3)
-        record = dataset.TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
-                            t.scanner_pose, Path(), Path())  # fmt: skip
-        frames[t.test_id] = scan_frames(record, cloud0, repeats, prepared.setup, prepared.kinematics)
+        frames[t.test_id] = scan_frames(t.record(), cloud0, repeats, prepared.setup, prepared.kinematics)
     np.testing.assert_array_equal(noise_floor_from_frames(frames).covariance, floor.covariance)
     assert np.all(floor.component_std > 0)
     assert floor.summary().startswith("noise floor from repeat scans: std x y z ")

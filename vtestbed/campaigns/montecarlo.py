@@ -187,6 +187,16 @@ class PreparedTest:
     def hits_loaded(self) -> ScanGeometry:
         return self.scan_loaded.hits(self.rays)
 
+    def record(self, wrench_unloaded=None, wrench_loaded=None) -> TestRecord:
+        """This test as a dataset row (no cloud files): the F/T readings given [N, N*m], by default
+        the true wrenches; what the researcher's reduction (``measure_arrays``) reads."""
+        return TestRecord(
+            self.test_id, self.group, np.degrees(self.q),
+            self.wrench_unloaded if wrench_unloaded is None else wrench_unloaded,
+            self.wrench_loaded if wrench_loaded is None else wrench_loaded,
+            self.scanner_pose, Path(), Path(),
+        )  # fmt: skip
+
     @property
     def nbytes(self) -> int:
         """Bytes of the arrays held (the scans dominate; the ray table is shared with other tests)."""
@@ -290,8 +300,7 @@ def measure_trial(
             rng,
             prepared.scenario.effects,
         )
-        record = TestRecord(t.test_id, t.group, np.degrees(t.q), w0, w1, t.scanner_pose, Path(), Path())
-        out.append(measure_arrays(record, cloud0, cloud1, prepared.setup, kin))
+        out.append(measure_arrays(t.record(w0, w1), cloud0, cloud1, prepared.setup, kin))
     return out
 
 
@@ -356,9 +365,7 @@ def repeat_frames(
         clouds = draw_repeat_scans(
             t.hits_unloaded, noise, repeat_rng(seed, t.group, t.index), repeats, effects
         )
-        record = TestRecord(t.test_id, t.group, np.degrees(t.q), t.wrench_unloaded, t.wrench_loaded,
-                            t.scanner_pose, Path(), Path())  # fmt: skip
         frames[t.test_id] = scan_frames(
-            record, None, clouds, prepared.setup, prepared.kinematics, m.frame_unloaded
+            t.record(), None, clouds, prepared.setup, prepared.kinematics, m.frame_unloaded
         )
     return frames
