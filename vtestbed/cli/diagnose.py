@@ -10,13 +10,10 @@ from .args import output_dir
 
 def _cmd_diagnose(args) -> int:
     from ..errors import OutOfRangeError
-    from ..researcher.candidates import CANDIDATE_NAMES
     from ..researcher.discrepancy import diagnose, markdown
     from ..robots import load_robot
 
-    names = (
-        CANDIDATE_NAMES if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
-    )
+    names = None if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics)
@@ -51,7 +48,8 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--candidates",
-        help="comma-separated candidate names (default: all but the opt-in geometric_error)",
+        help="comma-separated candidate names (default: all but the opt-in geometric_error; with "
+        "--statics paper, the clean world's gravity_stiffness, load_dependent_jacobian and exact_kinematics too)",
     )
     p.add_argument("--statics", default="exact", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip

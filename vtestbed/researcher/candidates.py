@@ -24,6 +24,7 @@ from ..dataset import DatasetSetup
 from ..errors import UnknownNameError
 from .kinematics import ArmKinematics
 from .measure import TestMeasurement, wrench_at_block
+from .statics import CLEAN_WORLD_TERMS, ExactStatics
 
 
 @dataclass(frozen=True)
@@ -254,6 +255,25 @@ def _geometric_error() -> Candidate:
     return Candidate("geometric_error", "geometric_error", names, columns, bilinear=True)
 
 
+def _clean_world_term(name: str) -> Candidate:
+    """One of the clean world's own model gaps (:mod:`.statics`), scaled by ``scale`` (1: as the
+    nominal model predicts it; for ``gravity_stiffness``, the nominal masses' share of the weight).
+
+    Its columns are the displacement with that term alone in the statics minus the paper's
+    prediction, at the current compliances (so the term is bilinear). Only against the paper's
+    baseline: the exact statics already contain all three.
+    """
+
+    def columns(ctx: ModelContext, compliance) -> np.ndarray:
+        alone, none = ExactStatics(ctx.kin, ctx.setup, (name,)), ExactStatics(ctx.kin, ctx.setup, ())
+        rows = [
+            alone.displacement(m, compliance) - none.displacement(m, compliance) for m in ctx.measurements
+        ]
+        return np.concatenate(rows)[:, None] if rows else np.zeros((0, 1))
+
+    return Candidate(name, name, ("scale",), columns, bilinear=True)
+
+
 def gravity_torque(kin: ArmKinematics) -> Callable[[np.ndarray], np.ndarray]:
     """``g(q)`` (n,) [N*m]: the arm's weight torques from the nominal inertias (Pinocchio RNEA)."""
     zeros = np.zeros(kin.model.nv)
@@ -278,13 +298,16 @@ CANDIDATE_NAMES = (
 # Opt-in (``--candidates``): 9 parameters cost the forward selection power under its Bonferroni
 # correction, and the discrepancy benchmark has not yet measured its false-alarm rate.
 OPTIONAL_CANDIDATE_NAMES = ("geometric_error",)
+# The clean world's model gaps as named terms: candidates only against the paper's statics
+# (``diagnose --statics paper`` adds them to the default set; the exact statics contain them).
+CLEAN_WORLD_CANDIDATE_NAMES = CLEAN_WORLD_TERMS
 COUPLED_PAIRS = ((4, 5), (4, 6), (5, 6), (2, 3))
 NONLINEAR_JOINTS = (2, 3)
 
 
 def candidates(kin: ArmKinematics, names=CANDIDATE_NAMES) -> list[Candidate]:
     """The candidate terms of ``names`` (each name may give several instances)."""
-    valid = CANDIDATE_NAMES + OPTIONAL_CANDIDATE_NAMES
+    valid = CLEAN_WORLD_CANDIDATE_NAMES + CANDIDATE_NAMES + OPTIONAL_CANDIDATE_NAMES
     unknown = [n for n in names if n not in valid]
     if unknown:
         raise UnknownNameError("candidate", unknown[0], valid)
@@ -297,6 +320,8 @@ def candidates(kin: ArmKinematics, names=CANDIDATE_NAMES) -> list[Candidate]:
             out += [_joint_coupling(i, j) for i, j in COUPLED_PAIRS]
         elif name == "nonlinear_joint":
             out += [_nonlinear_joint(j, g) for j in NONLINEAR_JOINTS]
+        elif name in CLEAN_WORLD_CANDIDATE_NAMES:
+            out.append(_clean_world_term(name))
         else:
             out.append({"gravity_compensator": _gravity_compensator, "base_compliance": _base_compliance,
                         "ft_misalignment": _ft_misalignment, "ft_bias_drift": _ft_bias_drift,

@@ -15,12 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatasetError, UnknownNameError
+from ..errors import DatasetError, OutOfRangeError, UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
-from .candidates import CANDIDATE_NAMES, OPTIONAL_CANDIDATE_NAMES, ModelContext, candidates
+from .candidates import (
+    CANDIDATE_NAMES,
+    CLEAN_WORLD_CANDIDATE_NAMES,
+    OPTIONAL_CANDIDATE_NAMES,
+    ModelContext,
+    candidates,
+)
 from .diagnose import (
     CONFUSABLE_BIC,
     DEFAULT_ALPHA,
@@ -39,6 +45,17 @@ from .statics import ExactStatics
 STATICS = ("exact", "paper")
 
 
+def _require_outside(kind: str, terms, where: str) -> None:
+    """The clean world's own gaps are part of the exact statics: fitting them on top is refused."""
+    inside = [t for t in terms if t in CLEAN_WORLD_CANDIDATE_NAMES]
+    if kind == "exact" and inside:
+        raise OutOfRangeError(
+            f"{where}: candidate {inside[0]!r} is part of the exact statics baseline, so it cannot be "
+            "tested against it; use statics 'paper' to test the clean world's terms "
+            f"({', '.join(CLEAN_WORLD_CANDIDATE_NAMES)})"
+        )
+
+
 def _statics(kind: str, kin, setup):
     """The base model's statics: ``exact`` (the clean world's, :mod:`.statics`) or the paper's."""
     if kind not in STATICS:
@@ -46,25 +63,32 @@ def _statics(kind: str, kin, setup):
     return ExactStatics(kin, setup) if kind == "exact" else None
 
 
-def diagnose(
-    root, alpha: float = DEFAULT_ALPHA, names=CANDIDATE_NAMES, out=None, statics: str = "exact"
-) -> dict:
+def default_candidates(statics: str) -> tuple[str, ...]:
+    """The default candidate names: against the paper's statics, the clean world's three gaps too."""
+    return (CLEAN_WORLD_CANDIDATE_NAMES if statics == "paper" else ()) + CANDIDATE_NAMES
+
+
+def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: str = "exact") -> dict:
     """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``).
 
     ``statics="exact"`` (default) takes the paper's model with the clean world's exact statics
     (gravity at the sagged pose, load-dependent Jacobian, exact kinematics: :mod:`.statics`) as
     the baseline, so that candidates compete only for what every lab does not share;
-    ``"paper"`` takes the paper's linear model as it is.
+    ``"paper"`` takes the paper's linear model as it is, and the three clean-world gaps
+    (``gravity_stiffness``, ``load_dependent_jacobian``, ``exact_kinematics``) join the
+    candidates. ``names``: the candidate names (default :func:`default_candidates`).
     """
+    names = default_candidates(statics) if names is None else tuple(names)
+    _require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
+    pool = candidates(kin, names)
     exact = _statics(statics, kin, setup)
     ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
-    pool = candidates(kin, names)
     base = fit_model(ctx, white, [])
     chosen, steps, final = name_effects(ctx, white, pool, alpha)
     names_chosen = {c.label for c in chosen}
@@ -337,14 +361,18 @@ def read_model(path, robot, kin) -> tuple[list, str]:
         raise DatasetError(
             f"{path}: robot = {data.get('robot')!r} does not match the dataset's robot {robot!r}"
         )
-    pool = {c.label: c for c in candidates(kin, CANDIDATE_NAMES + OPTIONAL_CANDIDATE_NAMES)}
+    pool = {c.label: c for c in candidates(kin, default_candidates("paper") + OPTIONAL_CANDIDATE_NAMES)}
     terms = data.get("terms")
     if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
         raise DatasetError(f"{path}: terms must be a list of candidate labels")
     unknown = [t for t in terms if t not in pool]
     if unknown:
         raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
-    return [pool[t] for t in terms], data.get("statics", "exact")
+    statics = data.get("statics", "exact")
+    if statics not in STATICS:
+        raise DatasetError(f"{path}: statics = {statics!r}; valid: {', '.join(STATICS)}")
+    _require_outside(statics, [pool[t].name for t in terms], f"{path}: terms (statics = 'exact')")
+    return [pool[t] for t in terms], statics
 
 
 def identify_with_model(root, model_path) -> dict:

@@ -8,6 +8,15 @@ too. The block's displacement is then the exact rigid motion between its frames 
 and the loaded equilibria. This captures gravity's geometric stiffness, the load-dependent
 Jacobian (the paper's complementary stiffness matrix) and second-order kinematics at once.
 
+Each of the three can be switched on alone (``terms``, names in :data:`CLEAN_WORLD_TERMS`):
+``gravity_stiffness`` evaluates the weight at the sagged pose (off: at the commanded one, so it
+does not change under the load); ``load_dependent_jacobian`` takes the sensor's Jacobian and
+its axes at the sagged pose (off: at the commanded one); ``exact_kinematics`` takes the rigid
+motion between the two sagged block frames (off: ``J(q_cmd) (q_loaded - q_unloaded)``). With
+none on, the displacement is the paper's prediction (tested to round-off), so the gap each term
+opens alone is its own part of the clean world's gap: :mod:`.candidates` offers the three as
+named candidate terms when the baseline is the paper's model.
+
 :meth:`ExactStatics.gap` is the difference between that and the paper's prediction, for given
 compliances: :func:`vtestbed.researcher.diagnose.fit_model` subtracts it from the measurements
 (iterating with the compliances) when asked for the exact statics. Nominal model only: it reads
@@ -20,20 +29,28 @@ import numpy as np
 import pinocchio as pin
 
 from ..dataset import DatasetSetup
-from ..errors import ConvergenceError, DatasetError
+from ..errors import ConvergenceError, DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame
 from .kinematics import ArmKinematics
 from .measure import TestMeasurement
 
 MAX_ITERATIONS = 60
 TOLERANCE = 1e-13  # rad: far below any deflection the scanner sees (1e-6 rad)
+CLEAN_WORLD_TERMS = ("gravity_stiffness", "load_dependent_jacobian", "exact_kinematics")
 
 
 class ExactStatics:
-    """The nominal robot's static equilibrium under its weight and the measured sensor load."""
+    """The nominal robot's static equilibrium under its weight and the measured sensor load.
 
-    def __init__(self, kin: ArmKinematics, setup: DatasetSetup):
-        self.kin, self.setup = kin, setup
+    ``terms``: which of :data:`CLEAN_WORLD_TERMS` the statics include (default: all three, the
+    clean world's exact statics; none: the paper's linear model).
+    """
+
+    def __init__(self, kin: ArmKinematics, setup: DatasetSetup, terms=CLEAN_WORLD_TERMS):
+        unknown = [t for t in terms if t not in CLEAN_WORLD_TERMS]
+        if unknown:
+            raise UnknownNameError("clean-world term", unknown[0], CLEAN_WORLD_TERMS)
+        self.kin, self.setup, self.terms = kin, setup, frozenset(terms)
         self._zeros = np.zeros(kin.model.nv)
 
     def equilibrium(self, q_cmd: np.ndarray, compliance: np.ndarray, reading: np.ndarray) -> np.ndarray:
@@ -41,13 +58,15 @@ class ExactStatics:
 
         ``reading`` (6,) [N, N*m] is the F/T reading in the sensor frame (the load on the sensor).
         """
-        kin, q = self.kin, np.array(q_cmd, dtype=float)
+        kin, q_cmd = self.kin, np.array(q_cmd, dtype=float)
+        q = q_cmd
         for _ in range(MAX_ITERATIONS):
-            sensor = kin.tool_pose(q, self.setup.sensor_in_flange)
-            rot = sensor[:3, :3]
+            at_load = q if "load_dependent_jacobian" in self.terms else q_cmd
+            rot = kin.tool_pose(at_load, self.setup.sensor_in_flange)[:3, :3]
             wrench = np.concatenate([rot @ reading[:3], rot @ reading[3:]])
-            jac = kin.jacobian(q, self.setup.sensor_in_flange, frame="base")
-            gravity = pin.rnea(kin.model, kin.data, q, self._zeros, self._zeros)
+            jac = kin.jacobian(at_load, self.setup.sensor_in_flange, frame="base")
+            at_weight = q if "gravity_stiffness" in self.terms else q_cmd
+            gravity = pin.rnea(kin.model, kin.data, at_weight, self._zeros, self._zeros)
             q_next = q_cmd + compliance * (jac.T @ wrench - gravity)
             if np.max(np.abs(q_next - q)) < TOLERANCE:
                 return q_next
@@ -60,10 +79,11 @@ class ExactStatics:
         """(6,) the block's displacement [m, rad] in its unloaded frame, from the two equilibria."""
         if m.readings is None:
             raise DatasetError(f"test {m.test_id}: the exact statics need the raw F/T readings")
-        poses = [
-            self.kin.tool_pose(self.equilibrium(m.q, compliance, w), self.setup.block_in_flange)
-            for w in m.readings
-        ]
+        q_unloaded, q_loaded = (self.equilibrium(m.q, compliance, w) for w in m.readings)
+        if "exact_kinematics" not in self.terms:
+            jac = self.kin.jacobian(m.q, self.setup.block_in_flange, frame="tool")
+            return jac @ (q_loaded - q_unloaded)
+        poses = [self.kin.tool_pose(q, self.setup.block_in_flange) for q in (q_unloaded, q_loaded)]
         return displacement_in_block_frame(*poses)
 
     def gap(self, measurements: list[TestMeasurement], compliance: np.ndarray) -> np.ndarray:
