@@ -18,7 +18,8 @@ from vtestbed import cli
 from vtestbed.errors import DatasetError, OutOfRangeError, UnknownNameError
 from vtestbed.researcher.candidates import ModelContext, candidates
 from vtestbed.researcher.diagnose import Whitener, fit_model, name_effects
-from vtestbed.researcher.discrepancy import default_candidates, diagnose, read_model
+from vtestbed.researcher.discrepancy import diagnose
+from vtestbed.researcher.model_file import default_candidates, read_model
 from vtestbed.researcher.noise_floor import NoiseFloor
 from vtestbed.researcher.statics import CLEAN_WORLD_TERMS, ExactStatics
 from vtestbed.scenario import load_scenario
@@ -46,7 +47,8 @@ def test_with_no_term_on_the_statics_are_the_papers_model(ideal, truth):
         paper = m.jacobian @ (c * (m.jacobian.T @ m.wrench))
         np.testing.assert_allclose(none.displacement(m, c), paper, rtol=0, atol=1e-12 * np.abs(paper).max())
     with pytest.raises(
-        UnknownNameError, match="unknown clean-world term 'wobble'; valid names: exact_kinematics, gravity_stiffness"
+        UnknownNameError,
+        match="unknown clean-world term 'wobble'; valid names: exact_kinematics, gravity_stiffness",
     ):
         ExactStatics(kin, setup, ("wobble",))
 

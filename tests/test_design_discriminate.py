@@ -196,6 +196,14 @@ def test_confirming_rivals_after_a_decisive_diagnosis():
     # a first name the stepwise search dropped is not confirmed, and leaves the rivals
     report = _report(rounds) | {"dropped": {"a": "named in round 1, dropped in round 2"}}
     assert disc.confirming_rivals(report)["rivals"] == [disc.BASELINE, "c", "b", "d"]
+    # candidates that reproduce at least half of the named term's pattern come first, largest first,
+    # however their parameter count ranks them by BIC (e: 6 parameters, last by BIC)
+    overlaps = {"b": 0.1, "c": 0.3, "d": 0.6, "e": 0.9, "f": 0.95}  # f has no parameters: not a rival
+    for row in decisive:
+        row["overlap"] = overlaps.get(row["label"])
+    assert disc.confirming_rivals(_report(rounds))["rivals"] == ["a", "e", "d", "c"]
+    decisive[4]["overlap"] = disc.STAND_IN_R2 - 1e-9  # just below: back to the BIC order
+    assert disc.confirming_rivals(_report(rounds))["rivals"] == ["a", "d", "c", "b"]
 
 
 def test_bad_input(lab_model):

@@ -199,7 +199,7 @@ def test_bad_inputs_are_named(tmp_path, capsys):
 
 def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, truth, tmp_path):
     from vtestbed.errors import DatasetError
-    from vtestbed.researcher.discrepancy import identify_with_model
+    from vtestbed.researcher.model_file import identify_with_model
 
     report = diagnose(hidden_dataset, out=tmp_path / "diag")
     model = tmp_path / "diag" / "model.json"

@@ -37,7 +37,7 @@ def _cmd_simulate(args) -> int:
 
 def _identify_with_model(args) -> int:
     """``identify --model FILE``: the paper's model plus the file's terms, against the noise floor."""
-    from ..researcher.discrepancy import identify_with_model
+    from ..researcher.model_file import identify_with_model
 
     out = identify_with_model(args.dataset, args.model)
     if args.json:

@@ -38,11 +38,18 @@ from ..robots import RobotDescription
 from .kappa import inv_kappa_batch
 from .optimal import CandidateTest, candidate_tests, nominal_wrench
 from .regions import PoseConstraints
-from .rivals import BASELINE, MARGINAL_FACTOR, MAX_RIVALS, confirming_rivals, rivals_from_report
+from .rivals import (
+    BASELINE,
+    MARGINAL_FACTOR,
+    MAX_RIVALS,
+    STAND_IN_R2,
+    confirming_rivals,
+    rivals_from_report,
+)
 
 __all__ = [  # the rivals' selection lives in .rivals; re-exported: discover and the tests use it here
-    "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "Choice", "Hypothesis", "PairBlocks", "Proposal",
-    "choose", "confirming_rivals", "fit_hypotheses", "pair_blocks", "proposed_context", "propose",
+    "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "STAND_IN_R2", "Choice", "Hypothesis",
+    "PairBlocks", "Proposal", "choose", "confirming_rivals", "fit_hypotheses", "pair_blocks", "proposed_context", "propose",
     "rivals_from_report", "test_pool",
 ]  # fmt: skip
 

@@ -9,7 +9,7 @@ world. :func:`rivals_from_report` is the default rule (confusable or marginal ev
 
 from __future__ import annotations
 
-from ..researcher.diagnose import CONFUSABLE_BIC
+from ..researcher.diagnose import CONFUSABLE_BIC, STAND_IN_R2
 
 BASELINE = "baseline"  # the label of the model without a further term
 MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
@@ -62,18 +62,29 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
 def confirming_rivals(report: dict) -> dict:
     """The rivals of a round of tests after a decisive diagnosis (``discover --always``).
 
-    The first round decides what is named first, so its closest models are the ones to test:
-    with a name, the chosen term against the next candidates by BIC (a wrong name clear of the
-    confusable band is then put to the test, reason "confirm"); without one, the baseline against
-    the strongest candidates (an effect just below the level, reason "screen"). Terms the
-    stepwise search dropped are left out. At most :data:`MAX_RIVALS` models.
+    The first round decides what is named first, so its closest models are the ones to test.
+    With a name (reason "confirm"), the chosen term against the candidates that could stand in
+    for it (those that reproduce at least :data:`STAND_IN_R2` of its fitted pattern, the round's
+    ``overlap``, largest first), then the next candidates by BIC: a wrong name clear of the
+    confusable band is put to the test against the effect it may stand for, even when that
+    effect's parameter count ranks it low by BIC (a 6-parameter ``block_offset`` behind a
+    ``joint_coupling``). Without a name (reason "screen"), the baseline against the strongest
+    candidates by BIC (an effect just below the level). Terms the stepwise search dropped are
+    left out. At most :data:`MAX_RIVALS` models.
     """
     dropped = set(report.get("dropped") or ())
     rnd = report["rounds"][0]
     ranked = [t["label"] for t in sorted(rnd["tests"], key=lambda t: t["bic"]) if t["df"] > 0]
     chosen = rnd["chosen"] if rnd["chosen"] not in dropped else None
     lead = chosen or BASELINE
-    rivals = [lead, *(label for label in ranked if label not in (lead, *dropped))][:MAX_RIVALS]
+    if chosen:
+        overlapping = sorted(
+            (t for t in rnd["tests"] if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2),
+            key=lambda t: -t["overlap"],
+        )
+        ranked = [t["label"] for t in overlapping] + ranked
+    order = dict.fromkeys(label for label in ranked if label not in (lead, *dropped))
+    rivals = [lead, *order][:MAX_RIVALS]
     base_terms = [term for term in rnd["base"] if term not in dropped]
     return {
         "reason": "confirm" if chosen else "screen",

@@ -36,6 +36,7 @@ from .noise_floor import NoiseFloor
 
 CONFUSABLE_BIC = 10.0  # a runner-up within this BIC of the chosen term could be the effect instead
 ABSORBED_R2 = 0.999  # a candidate whose whitened columns the stiffness columns explain to this is absorbed
+STAND_IN_R2 = 0.5  # a candidate reproducing this share of a named term's pattern could be the effect instead
 DEFAULT_ALPHA = 0.01
 
 
@@ -164,6 +165,41 @@ def absorbed_by(ctx: ModelContext, white: Whitener, term: Candidate, compliance,
     return f"absorbed into {', '.join(joints)} (R^2 = {np.min(r2):.5f})"
 
 
+def stand_in_overlap(
+    ctx: ModelContext, white: Whitener, fit: ModelFit, term: Candidate, base, others
+) -> dict:
+    """How much of ``term``'s fitted pattern each of ``others`` reproduces: label -> R^2 in [0, 1].
+
+    The pattern is the term's whitened contribution in ``fit`` (the model of ``base`` terms plus
+    ``term``), with what the stiffnesses and the ``base`` terms can fit projected out; each other
+    candidate's columns (at ``fit``'s compliances, projected the same way) are regressed on it. A
+    candidate with a large overlap could be the effect the named term stands in for, whatever its
+    parameter count costs it in BIC (``discover --always`` puts such candidates to the test).
+    """
+    ms, c = ctx.measurements, fit.compliance
+    a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
+    span = white(np.hstack([a, *(b.columns(ctx, c) for b in base)]))
+    u = np.linalg.svd(span, full_matrices=False)[0]
+
+    def project(x):
+        return x - u @ (u.T @ x)
+
+    pattern = project(white(term.columns(ctx, c)) @ np.array(list(fit.theta[term.label].values())))
+    norm = float(pattern @ pattern)
+    out = {}
+    for cand in others:
+        raw = white(cand.columns(ctx, c))
+        b = project(raw)
+        # columns the stiffnesses and base terms explain leave round-off, which points anywhere
+        b = b[:, np.linalg.norm(b, axis=0) > 1e-8 * np.linalg.norm(raw, axis=0)]
+        if norm == 0 or b.shape[1] == 0:
+            out[cand.label] = 0.0
+            continue
+        coef = np.linalg.lstsq(b, pattern, rcond=1e-10)[0]
+        out[cand.label] = float(np.clip(1.0 - np.sum((pattern - b @ coef) ** 2) / norm, 0.0, 1.0))
+    return out
+
+
 @dataclass(frozen=True)
 class Step:
     """One round of the stepwise search: every candidate's test against the current model, then
@@ -246,6 +282,10 @@ def name_effects(
         if best is not None:
             others = [r for r in rows if r["significant"] and r["label"] != best[1].label]
             runner = min(others, key=lambda r: r["bic"]) if others else None
+            rest = [c for c in remaining if c is not best[1]]
+            overlap = stand_in_overlap(ctx, white, best[2], best[1], chosen, rest)
+            for row in rows:  # the chosen term's own row: None
+                row["overlap"] = overlap.get(row["label"])
         base_terms, base_chi2 = tuple(t.label for t in chosen), current.chi2
         dropped = []
         if best is not None:

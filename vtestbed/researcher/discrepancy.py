@@ -15,21 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatasetError, OutOfRangeError, UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
-from .candidates import (
-    CANDIDATE_NAMES,
-    CLEAN_WORLD_CANDIDATE_NAMES,
-    OPTIONAL_CANDIDATE_NAMES,
-    ModelContext,
-    candidates,
-)
+from .candidates import ModelContext, candidates
 from .diagnose import (
     CONFUSABLE_BIC,
     DEFAULT_ALPHA,
+    STAND_IN_R2,
     Whitener,
     absorbed_by,
     fit_model,
@@ -39,33 +33,8 @@ from .diagnose import (
 )
 from .kinematics import ArmKinematics
 from .measure import load_measurements
+from .model_file import baseline_statics, default_candidates, model_file, require_outside
 from .noise_floor import estimate_noise_floor
-from .statics import ExactStatics
-
-STATICS = ("exact", "paper")
-
-
-def _require_outside(kind: str, terms, where: str) -> None:
-    """The clean world's own gaps are part of the exact statics: fitting them on top is refused."""
-    inside = [t for t in terms if t in CLEAN_WORLD_CANDIDATE_NAMES]
-    if kind == "exact" and inside:
-        raise OutOfRangeError(
-            f"{where}: candidate {inside[0]!r} is part of the exact statics baseline, so it cannot be "
-            "tested against it; use statics 'paper' to test the clean world's terms "
-            f"({', '.join(CLEAN_WORLD_CANDIDATE_NAMES)})"
-        )
-
-
-def _statics(kind: str, kin, setup):
-    """The base model's statics: ``exact`` (the clean world's, :mod:`.statics`) or the paper's."""
-    if kind not in STATICS:
-        raise UnknownNameError("statics", kind, STATICS)
-    return ExactStatics(kin, setup) if kind == "exact" else None
-
-
-def default_candidates(statics: str) -> tuple[str, ...]:
-    """The default candidate names: against the paper's statics, the clean world's three gaps too."""
-    return (CLEAN_WORLD_CANDIDATE_NAMES if statics == "paper" else ()) + CANDIDATE_NAMES
 
 
 def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: str = "exact") -> dict:
@@ -79,14 +48,14 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     candidates. ``names``: the candidate names (default :func:`default_candidates`).
     """
     names = default_candidates(statics) if names is None else tuple(names)
-    _require_outside(statics, names, "--candidates")
+    require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
     pool = candidates(kin, names)
-    exact = _statics(statics, kin, setup)
+    exact = baseline_statics(statics, kin, setup)
     ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
     base = fit_model(ctx, white, [])
@@ -233,6 +202,14 @@ def markdown(report: dict, joint_names) -> str:
     for c in report["confusable"]:
         lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC only {c['delta_bic']:.1f} apart): "
                      "more varied tests would separate them")  # fmt: skip
+    for rnd in (r for r in report["rounds"] if r["chosen"] in report["named"]):
+        alike = sorted(
+            (t for t in rnd["tests"] if (t.get("overlap") or 0.0) >= STAND_IN_R2), key=lambda t: -t["overlap"]
+        )
+        if alike:
+            lines.append(f"- `{rnd['chosen']}`'s pattern is also reproduced by "
+                         + ", ".join(f"`{t['label']}` ({t['overlap']:.0%})" for t in alike)
+                         + ": it may stand for one of them (`vtestbed discover --always` tests them against each other)")  # fmt: skip
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(
@@ -339,56 +316,3 @@ def write_report(report: dict, out: Path, joint_names) -> None:
     plot_gap(report, out / "gap.png")
     plot_patterns(report, out / "patterns.png")
     plot_effect(report, out / "effect.png")
-
-
-MODEL_FORMAT = "vtestbed-model/1"
-
-
-def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
-    """The identified model as a file records it: the robot, its statics and the named terms."""
-    return {"format": MODEL_FORMAT, "robot": robot, "statics": statics, "terms": list(report["named"]),
-            "parameters": report["model"]["parameters"]}  # fmt: skip
-
-
-def read_model(path, robot, kin) -> tuple[list, str]:
-    """The candidate terms a model file names, checked against the dataset's robot, and its statics."""
-    from ..files import read_json
-
-    data = read_json(path, "model file", DatasetError)
-    if data.get("format") != MODEL_FORMAT:
-        raise DatasetError(f"{path}: format must be {MODEL_FORMAT!r}, got {data.get('format')!r}")
-    if data.get("robot") != robot:
-        raise DatasetError(
-            f"{path}: robot = {data.get('robot')!r} does not match the dataset's robot {robot!r}"
-        )
-    pool = {c.label: c for c in candidates(kin, default_candidates("paper") + OPTIONAL_CANDIDATE_NAMES)}
-    terms = data.get("terms")
-    if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
-        raise DatasetError(f"{path}: terms must be a list of candidate labels")
-    unknown = [t for t in terms if t not in pool]
-    if unknown:
-        raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
-    statics = data.get("statics", "exact")
-    if statics not in STATICS:
-        raise DatasetError(f"{path}: statics = {statics!r}; valid: {', '.join(STATICS)}")
-    _require_outside(statics, [pool[t].name for t in terms], f"{path}: terms (statics = 'exact')")
-    return [pool[t] for t in terms], statics
-
-
-def identify_with_model(root, model_path) -> dict:
-    """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans)."""
-    setup, measurements = load_measurements(root)
-    floor = require_floor(estimate_noise_floor(root, measurements), root)
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
-    terms, statics = read_model(model_path, setup.robot, kin)
-    exact = _statics(statics, kin, setup)
-    ident = [m for m in measurements if m.group == "identification"]
-    valid = [m for m in measurements if m.group == "validation"]
-    ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
-    if 6 * len(ident) <= kin.robot.dof + sum(len(t.params) for t in terms):
-        raise DatasetError(
-            f"{root}: {len(ident)} tests are too few for the model's {len(terms)} terms and the stiffness"
-        )
-    fit = fit_model(ctx, white, terms)
-    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
-            "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip

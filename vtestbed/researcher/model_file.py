@@ -1,0 +1,105 @@
+"""The identified model's baseline statics and its file: what ``diagnose`` names, for reuse.
+
+``diagnose`` fits the paper's model on one of two statics (``STATICS``): the clean world's exact
+statics (:mod:`.statics`, default) or the paper's linear model, against which the clean world's
+three gaps are candidates of their own. It writes the named terms to ``model.json``
+(``vtestbed-model/1``: the robot, the statics, the terms and their parameters);
+``vtestbed identify --model FILE`` refits the paper's model plus those terms on a dataset
+(:func:`identify_with_model`). Researcher side: reads the dataset and the file, never the truth.
+Units: SI; stiffness in N*m/rad.
+"""
+
+from __future__ import annotations
+
+from ..errors import DatasetError, OutOfRangeError, UnknownNameError
+from ..robots import load_robot
+from .candidates import (
+    CANDIDATE_NAMES,
+    CLEAN_WORLD_CANDIDATE_NAMES,
+    OPTIONAL_CANDIDATE_NAMES,
+    ModelContext,
+    candidates,
+)
+from .diagnose import Whitener, fit_model, require_floor, validation_gap
+from .kinematics import ArmKinematics
+from .measure import load_measurements
+from .noise_floor import estimate_noise_floor
+from .statics import ExactStatics
+
+STATICS = ("exact", "paper")
+
+
+def require_outside(kind: str, terms, where: str) -> None:
+    """The clean world's own gaps are part of the exact statics: fitting them on top is refused."""
+    inside = [t for t in terms if t in CLEAN_WORLD_CANDIDATE_NAMES]
+    if kind == "exact" and inside:
+        raise OutOfRangeError(
+            f"{where}: candidate {inside[0]!r} is part of the exact statics baseline, so it cannot be "
+            "tested against it; use statics 'paper' to test the clean world's terms "
+            f"({', '.join(CLEAN_WORLD_CANDIDATE_NAMES)})"
+        )
+
+
+def baseline_statics(kind: str, kin, setup):
+    """The base model's statics: ``exact`` (the clean world's, :mod:`.statics`) or the paper's."""
+    if kind not in STATICS:
+        raise UnknownNameError("statics", kind, STATICS)
+    return ExactStatics(kin, setup) if kind == "exact" else None
+
+
+def default_candidates(statics: str) -> tuple[str, ...]:
+    """The default candidate names: against the paper's statics, the clean world's three gaps too."""
+    return (CLEAN_WORLD_CANDIDATE_NAMES if statics == "paper" else ()) + CANDIDATE_NAMES
+
+
+MODEL_FORMAT = "vtestbed-model/1"
+
+
+def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
+    """The identified model as a file records it: the robot, its statics and the named terms."""
+    return {"format": MODEL_FORMAT, "robot": robot, "statics": statics, "terms": list(report["named"]),
+            "parameters": report["model"]["parameters"]}  # fmt: skip
+
+
+def read_model(path, robot, kin) -> tuple[list, str]:
+    """The candidate terms a model file names, checked against the dataset's robot, and its statics."""
+    from ..files import read_json
+
+    data = read_json(path, "model file", DatasetError)
+    if data.get("format") != MODEL_FORMAT:
+        raise DatasetError(f"{path}: format must be {MODEL_FORMAT!r}, got {data.get('format')!r}")
+    if data.get("robot") != robot:
+        raise DatasetError(
+            f"{path}: robot = {data.get('robot')!r} does not match the dataset's robot {robot!r}"
+        )
+    pool = {c.label: c for c in candidates(kin, default_candidates("paper") + OPTIONAL_CANDIDATE_NAMES)}
+    terms = data.get("terms")
+    if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
+        raise DatasetError(f"{path}: terms must be a list of candidate labels")
+    unknown = [t for t in terms if t not in pool]
+    if unknown:
+        raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
+    statics = data.get("statics", "exact")
+    if statics not in STATICS:
+        raise DatasetError(f"{path}: statics = {statics!r}; valid: {', '.join(STATICS)}")
+    require_outside(statics, [pool[t].name for t in terms], f"{path}: terms (statics = 'exact')")
+    return [pool[t] for t in terms], statics
+
+
+def identify_with_model(root, model_path) -> dict:
+    """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans)."""
+    setup, measurements = load_measurements(root)
+    floor = require_floor(estimate_noise_floor(root, measurements), root)
+    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    terms, statics = read_model(model_path, setup.robot, kin)
+    exact = baseline_statics(statics, kin, setup)
+    ident = [m for m in measurements if m.group == "identification"]
+    valid = [m for m in measurements if m.group == "validation"]
+    ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
+    if 6 * len(ident) <= kin.robot.dof + sum(len(t.params) for t in terms):
+        raise DatasetError(
+            f"{root}: {len(ident)} tests are too few for the model's {len(terms)} terms and the stiffness"
+        )
+    fit = fit_model(ctx, white, terms)
+    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
+            "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
