@@ -16,7 +16,8 @@ from scipy.linalg import null_space, subspace_angles
 from test_researcher_discrepancy import PAPER, SIGMA, world_measurements
 
 from vtestbed.researcher.candidates import Candidate, ModelContext, candidates
-from vtestbed.researcher.diagnose import Whitener, fit_model, name_effects, stand_in_overlap
+from vtestbed.researcher.diagnose import STAND_IN_R2, Whitener, fit_model, name_effects, stand_in_overlap
+from vtestbed.researcher.discrepancy import stand_ins
 from vtestbed.researcher.identify import stack
 from vtestbed.researcher.noise_floor import NoiseFloor
 from vtestbed.scenario import load_scenario
@@ -72,3 +73,14 @@ def test_the_search_records_each_rounds_overlap(hidden_offset):
     again = stand_in_overlap(ctx, white, fit, chosen[0], [], [c for c in pool if c is not chosen[0]])
     for label, value in again.items():
         assert rows[label] == pytest.approx(value, abs=1e-9)
+
+
+def test_the_report_lists_the_candidates_that_could_stand_in():
+    """Only named terms, only overlaps at or above STAND_IN_R2, largest first."""
+    rows = [{"label": "a", "overlap": None}, {"label": "b", "overlap": 0.98}, {"label": "c", "overlap": 0.2},
+            {"label": "d", "overlap": STAND_IN_R2}, {"label": "e", "overlap": 0.75}]  # fmt: skip
+    other = [{"label": "b", "overlap": None}, {"label": "a", "overlap": 0.9}]
+    report = {"named": ["a"], "rounds": [{"chosen": "a", "tests": rows}, {"chosen": "b", "tests": other}]}
+    assert stand_ins(report) == {"a": [("b", 0.98), ("e", 0.75), ("d", STAND_IN_R2)]}
+    rows[1]["overlap"] = STAND_IN_R2 - 1e-9
+    assert [label for label, _ in stand_ins(report)["a"]] == ["e", "d"]

@@ -5,7 +5,7 @@ Stiffness in N*mm/rad, the noise floor in um and urad, residuals as ratios to th
 
 from __future__ import annotations
 
-from ..researcher.discrepancy import COMPONENTS
+from ..researcher.discrepancy import COMPONENTS, stand_ins
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
 from .loader import ResultFolder
@@ -47,11 +47,13 @@ def candidates(folder: ResultFolder) -> Section:
     for i, rnd in enumerate(folder.data["rounds"], start=1):
         base = ", ".join(rnd["base"]) or "the paper's model"
         rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t["bic"], ".2f"),
-                 "yes" if t["significant"] else "no"] for t in rnd["tests"]]  # fmt: skip
+                 "yes" if t["significant"] else "no",
+                 "-" if t.get("overlap") is None else Num(t["overlap"], ".2f")] for t in rnd["tests"]]  # fmt: skip
         caption = f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
         if rnd.get("dropped"):  # the stepwise search's re-test after this round's addition
             caption += f"; dropped: {', '.join(d['label'] for d in rnd['dropped'])}"
-        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "BIC", "significant"], rows,
+        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "BIC", "significant",
+                             "share of the chosen term's pattern"], rows,
                             id=f"candidates-round-{i}", caption=caption))  # fmt: skip
     return Section("candidates", "Candidate terms", blocks)
 
@@ -65,6 +67,12 @@ def named(folder: ResultFolder) -> Section:
     text += [
         f"{c['chosen']} could also be {c['runner_up']} (BIC only {c['delta_bic']:.1f} apart)"
         for c in r["confusable"]
+    ]
+    text += [
+        f"{chosen}'s pattern is also reproduced by "
+        + ", ".join(f"{label} ({share:.0%})" for label, share in alike)
+        + ": it may stand for one of them (discover --always tests them against each other)"
+        for chosen, alike in stand_ins(r).items()
     ]
     rows = []
     for label, params in r["model"]["parameters"].items():

@@ -125,6 +125,20 @@ def dropped_notes(steps, kept=()) -> dict:
     return out
 
 
+def stand_ins(report: dict) -> dict:
+    """Per named term: the candidates that reproduce at least ``STAND_IN_R2`` of its fitted pattern
+    in the round that named it, as (label, share) pairs, largest first (none: left out)."""
+    out = {}
+    for rnd in (r for r in report["rounds"] if r["chosen"] in report["named"]):
+        alike = sorted(
+            ((t["label"], t["overlap"]) for t in rnd["tests"] if (t.get("overlap") or 0.0) >= STAND_IN_R2),
+            key=lambda pair: -pair[1],
+        )
+        if alike:
+            out[rnd["chosen"]] = alike
+    return out
+
+
 def pose_features(ctx: ModelContext) -> dict:
     """Per test: joint angles [deg], the load's joint torques J^T dW [N*m], the force's elevation and
     azimuth in the base frame [deg]: what a residual pattern can be read against."""
@@ -202,14 +216,10 @@ def markdown(report: dict, joint_names) -> str:
     for c in report["confusable"]:
         lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC only {c['delta_bic']:.1f} apart): "
                      "more varied tests would separate them")  # fmt: skip
-    for rnd in (r for r in report["rounds"] if r["chosen"] in report["named"]):
-        alike = sorted(
-            (t for t in rnd["tests"] if (t.get("overlap") or 0.0) >= STAND_IN_R2), key=lambda t: -t["overlap"]
-        )
-        if alike:
-            lines.append(f"- `{rnd['chosen']}`'s pattern is also reproduced by "
-                         + ", ".join(f"`{t['label']}` ({t['overlap']:.0%})" for t in alike)
-                         + ": it may stand for one of them (`vtestbed discover --always` tests them against each other)")  # fmt: skip
+    for chosen, alike in stand_ins(report).items():
+        lines.append(f"- `{chosen}`'s pattern is also reproduced by "
+                     + ", ".join(f"`{label}` ({share:.0%})" for label, share in alike)
+                     + ": it may stand for one of them (`vtestbed discover --always` tests them against each other)")  # fmt: skip
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(
