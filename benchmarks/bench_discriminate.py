@@ -1,7 +1,8 @@
 """Named correctly before and after one round of discrimination tests, near the detection limit.
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
-     [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--workers 1]
+     [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--rounds R]
+     [--workers 1]
      [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
@@ -64,13 +65,13 @@ def scenario_for(path: str, seed: int, factor: float | None, world: tuple[str, .
 
 
 def run_seed(
-    path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool, world=()
+    path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool, world=(), rounds=1
 ) -> dict:
     sc = scenario_for(path, seed, factor, world)
     folder = Path(out) / f"s{seed}"
     t0 = time.perf_counter()
     try:
-        r = discover(sc, folder, extra_tests=extra_tests, always=always)
+        r = discover(sc, folder, extra_tests=extra_tests, always=always, rounds=rounds)
     except VtestbedError as exc:  # one seed's failure is a result (scored as not named), not the run's end
         shutil.rmtree(folder, ignore_errors=True)
         return {"seed": seed, "before": None, "after": None, "proposed": None,
@@ -83,6 +84,8 @@ def run_seed(
            "dbic_before": r.get("measured_before", {}).get("delta_bic"),
            "dbic_after": r.get("measured_after", {}).get("delta_bic"),
            "val_before": r.get("validation_gap_before"), "val_after": r.get("validation_gap_after"),
+           "rounds_run": len(r.get("rounds") or ()),
+           "after_round1": (r.get("rounds") or [{}])[0].get("named", r["named_before"]),
            "wall_s": time.perf_counter() - t0}  # fmt: skip
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
@@ -103,6 +106,8 @@ def main() -> None:
     ap.add_argument("--world", default="", help="comma-separated effects to hide instead of the scenario's "
                     "(realistic sizes), e.g. link_compliance,nonlinear_joint")  # fmt: skip
     ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="discover --rounds: later rounds while the diagnosis stays undecided (default 1)")  # fmt: skip
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
@@ -110,7 +115,16 @@ def main() -> None:
     expected = set() if args.expected == "nothing" else set(args.expected.split("+"))  # "a+b": both hidden
     seeds = range(args.first, args.first + args.seeds)
     world = tuple(name.strip() for name in args.world.split(",") if name.strip())
-    task = (args.scenario, args.factor, args.extra_tests, args.always, args.out, args.keep, world)
+    task = (
+        args.scenario,
+        args.factor,
+        args.extra_tests,
+        args.always,
+        args.out,
+        args.keep,
+        world,
+        args.rounds,
+    )
     rows = []
     with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(run_seed, task[0], seed, *task[1:]) for seed in seeds]
@@ -159,6 +173,10 @@ def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int
         print(f"validation error / noise floor (median of {len(gaps)}): paper's model {base:.2f}, named before "
               f"{before:.2f} (excess removed {(base - before) / (base - 1) * 100:.0f} %), after the round "
               f"{after:.2f} ({(base - after) / (base - 1) * 100:.0f} %)")  # fmt: skip
+    if any(r.get("rounds_run", 0) > 1 for r in rows):  # discover --rounds: what the later rounds changed
+        later = [r for r in rows if r.get("rounds_run", 0) > 1]
+        print(f"later rounds: {len(later)} seeds ran more than one round (at most {max(r['rounds_run'] for r in rows)}); "
+              f"named correctly after round 1 {score('after_round1')}/{n}, after the last round {score('after')}/{n}")  # fmt: skip
     print(f"wall per seed: {sum(r['wall_s'] for r in rows) / n:.1f} s")
 
 

@@ -23,11 +23,12 @@ import numpy as np
 import pytest
 
 from vtestbed.design import discriminate as disc
-from vtestbed.discovery import _researcher_view, discover, proposal_text, scenario_text, toml_text
+from vtestbed.discovery import _researcher_view, discover
 from vtestbed.errors import ScenarioError
 from vtestbed.experiment import simulate
 from vtestbed.files import read_toml
 from vtestbed.scenario import load_scenario, parse_scenario
+from vtestbed.scenario_writer import proposal_text, scenario_text, toml_text
 
 cli_main = importlib.import_module("vtestbed.cli.main")
 ROOT = Path(__file__).resolve().parents[1]
@@ -186,6 +187,33 @@ def test_always_confirms_a_decisive_name_with_a_round_of_tests(tmp_path):
     assert "**Confirming** (decisive, `--always`)" in (tmp_path / "out" / "discover.md").read_text()
 
 
+@pytest.mark.slow
+def test_later_rounds_run_while_the_diagnosis_is_undecided(tmp_path):
+    """``rounds = 3`` with one extra test a round: each later round starts from the diagnosis
+    before it, exactly when that diagnosis is undecided, and extends its dataset by its tests."""
+    result = discover(load_scenario(_small_scenario(tmp_path)), tmp_path / "out", extra_tests=1, n_poses=40,
+                      rounds=3)  # fmt: skip
+    out, rounds = tmp_path / "out", result["rounds"]
+    assert [r["round"] for r in rounds] == list(range(1, len(rounds) + 1)) and len(rounds) >= 2
+    for r in rounds[1:]:
+        k = r["round"]
+        before = json.loads((out / f"round{k - 1}" / "diagnose" / "report.json").read_text())
+        assert disc.rivals_from_report(before) == r["rivals"]  # undecided, so this round ran
+        assert load_scenario(out / f"proposal{k}.toml").n_tests == 1
+        prev, rows = (
+            _rows(out / f"round{k - 1}" / "dataset" / "tests.csv"),
+            _rows(out / f"round{k}" / "dataset" / "tests.csv"),
+        )
+        assert len(rows) == len(prev) + 1 and all(rows[t] == prev[t] for t in prev)  # earlier tests kept
+        assert load_scenario(out / f"round{k}" / "scenario.toml").n_tests == 8 + k
+    last = json.loads((out / f"round{len(rounds)}" / "diagnose" / "report.json").read_text())
+    assert result["named_after"] == rounds[-1]["named"] == last["named"]
+    if len(rounds) < 3:  # it stopped early: the last diagnosis was decisive
+        assert disc.rivals_from_report(last) is None
+    assert result["rivals"] == rounds[0]["rivals"] and result["proposal"] == rounds[0]["proposal"]
+    assert f"**After** {len(rounds)} rounds" in (out / "discover.md").read_text()
+
+
 def test_cli_discover_refuses_bad_input(tmp_path, capsys):
     path = _small_scenario(tmp_path)
     (tmp_path / "r0").mkdir()
@@ -195,6 +223,10 @@ def test_cli_discover_refuses_bad_input(tmp_path, capsys):
         ([str(path), "--out", str(tmp_path / "b"), "--alpha", "1.5"], "alpha = 1.5"),
         ([str(tmp_path / "none.toml"), "--out", str(tmp_path / "c")], "none.toml"),
         ([str(no_repeats), "--out", str(tmp_path / "d")], "scanner.repeats"),
+        (
+            [str(path), "--out", str(tmp_path / "e"), "--rounds", "0"],
+            "rounds = 0 is outside the valid range [1, 5]",
+        ),
     ]
     for argv, message in cases:
         code = cli_main.main(["discover", *argv])
@@ -219,3 +251,4 @@ def test_cli_choices_match_the_library():
     import inspect
 
     assert opts["n_poses"].default == inspect.signature(discover).parameters["n_poses"].default
+    assert opts["rounds"].default == inspect.signature(discover).parameters["rounds"].default

@@ -1,4 +1,4 @@
-"""``discover``: the discrepancy loop in the virtual lab, with one round of discrimination tests.
+"""``discover``: the discrepancy loop in the virtual lab, with rounds of discrimination tests.
 
 An orchestrator like :mod:`vtestbed.experiment`: it drives the truth world (simulate) and the
 researcher's side (diagnose, propose, and a nominal simulator without the hidden effects that
@@ -18,6 +18,8 @@ cross between them.
    are copied (clouds hard-linked) and only the new ones (``T021``, ... for 20 tests) are
    simulated, as a resumed ``vtestbed simulate`` of the longer scenario would.
 4. **Diagnose again** on the combined dataset (``DIR/round1/diagnose``).
+5. With ``rounds > 1``, while that diagnosis is still undecided, repeat 2-4 from the combined
+   dataset (``DIR/round2/``, ...): each round's scenario holds every earlier round's tests.
 
 ``DIR/discover.json`` and ``discover.md`` give the names before and after, and the separation:
 predicted (the design's T, in units of the noise floor squared) and measured (the BIC gap between
@@ -47,94 +49,15 @@ from .researcher.measure import load_measurements
 from .researcher.noise_floor import estimate_noise_floor
 from .researcher.statics import ExactStatics
 from .scenario import Scenario, load_scenario
+from .scenario_writer import proposal_text, scenario_text
 from .transforms import invert
 
-__all__ = ["discover", "proposal_text", "scenario_text", "toml_text"]
+__all__ = ["LabCheck", "discover", "markdown", "validation_summary"]
 
 POOL_STREAM = 7  # spawn key of the candidate pool's generator (0, 1: the test groups)
 EXTRA_TESTS_RANGE = (1, 50)
+ROUNDS_RANGE = (1, 5)  # rounds of discrimination tests one discover may run
 DEFAULT_EXTRA_TESTS = 10
-
-
-def _toml_key(k) -> str:
-    k = str(k)
-    return k if k and all(c.isascii() and (c.isalnum() or c in "_-") for c in k) else json.dumps(k)
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))  # shortest exact round trip; inf and nan are valid TOML
-    if isinstance(v, str):
-        return json.dumps(v)  # ASCII, with TOML's basic-string escapes (\", \\, \n, \uXXXX)
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise OutOfRangeError(f"cannot write {type(v).__name__} {v!r} to a scenario file")
-
-
-def _toml_table(prefix: str, table: dict) -> list[str]:
-    """Lines of one table: its values, then its sub-tables, then its arrays of tables."""
-    plain = [(k, v) for k, v in table.items() if not _is_table(v) and not _is_tables(v)]
-    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in plain]
-    out = ([f"[{prefix}]"] if prefix and (lines or not table) else []) + lines
-    for k, v in table.items():
-        name = f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k)
-        if _is_table(v):
-            out += ["", *_toml_table(name, v)]
-        elif _is_tables(v):
-            for item in v:
-                out += ["", f"[[{name}]]", *(f"{_toml_key(a)} = {_toml_value(b)}" for a, b in item.items())]
-    return out
-
-
-def _is_table(v) -> bool:
-    return isinstance(v, dict)
-
-
-def _is_tables(v) -> bool:
-    return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
-
-
-def toml_text(mapping: dict) -> str:
-    """``mapping`` as a TOML document: the one scenario-file writer of ``discover`` (strings and
-    keys quoted with JSON's escapes, which TOML's basic strings share; floats exact)."""
-    return "\n".join(_toml_table("", mapping)) + "\n"
-
-
-def _tests_tables(q, hooks, anchors, tensions) -> dict:
-    """The ``[poses]`` (DH degrees) and ``[load]`` tables of a scenario file for these tests."""
-    return {"poses": {"convention": "dh", "angles_deg": np.degrees(np.asarray(q, dtype=float)).tolist()},
-            "load": {"hook": list(hooks), "anchor": list(anchors), "tension_N": [float(t) for t in tensions]}}  # fmt: skip
-
-
-def scenario_text(scenario: Scenario, tests, name: str, description: str) -> str:
-    """The scenario file of ``scenario`` with ``tests`` (CandidateTest) appended, in DH degrees.
-
-    Every other table of the original file (lab, scanner, force sensor, identification,
-    validation and the hidden world) is copied as it was.
-    """
-    raw = {k: v for k, v in scenario.raw.items() if k not in ("poses", "load", "campaign")}
-    tests = list(tests)
-    head = {"name": name, "description": description, "robot": scenario.robot_name, "seed": scenario.seed}
-    body = _tests_tables(
-        np.vstack([scenario.poses, *(t.q[None] for t in tests)]), [*scenario.load.hooks, *(t.hook for t in tests)],
-        [*scenario.load.anchors, *(t.anchor for t in tests)], [*scenario.load.tensions, *(t.tension for t in tests)],
-    )  # fmt: skip
-    rest = {k: v for k, v in raw.items() if k not in head}
-    return toml_text(head | body | rest)
-
-
-def proposal_text(proposal: disc.Proposal, name: str, robot: str) -> str:
-    """A scenario file of the extra tests alone (DH angles): the lab's to-do list."""
-    c, ts = proposal.choice, proposal.tests
-    description = (f"Extra tests that separate {', '.join(proposal.rivals)} ({proposal.reason}; "
-                   f"{c.criterion}-optimal, separation {c.separation_before:.3g} -> {c.separation_after:.3g})")  # fmt: skip
-    head = {"name": name, "description": description, "robot": robot}
-    return toml_text(head | _tests_tables([t.q for t in ts], [t.hook for t in ts], [t.anchor for t in ts],
-                                          [t.tension for t in ts]))  # fmt: skip
 
 
 def _extend_dataset(src: Path, dst: Path, scenario: Scenario) -> None:
@@ -249,6 +172,7 @@ def discover(
     tensions=disc.DEFAULT_TENSIONS_N,
     progress: bool = False,
     always: bool = False,
+    rounds: int = 1,
 ) -> dict:
     """Simulate, diagnose, propose extra tests if undecided, simulate them, diagnose again.
 
@@ -274,6 +198,11 @@ def discover(
         (:func:`vtestbed.design.discriminate.confirming_rivals`). Lab time for certainty: a name
         the first round got wrong outside the confusable band, or an effect just below the
         level, is otherwise never questioned.
+    rounds : int
+        Rounds of discrimination tests at most, in :data:`ROUNDS_RANGE`. After the first, another
+        round runs only while the combined dataset's diagnosis is still undecided (confusable or
+        marginal; ``always`` applies to the first round only). Round ``k`` writes ``roundK/`` and
+        ``proposal.toml`` (round 1) or ``proposalK.toml``.
 
     Returns
     -------
@@ -296,50 +225,88 @@ def discover(
             f"scanner.repeats = {scenario.scanner.repeats}: discover diagnoses against the repeat scans' "
             "noise floor, so the scenario needs [scanner] repeats >= 2"
         )
+    lo, hi = ROUNDS_RANGE
+    if not (isinstance(rounds, (int, np.integer)) and lo <= rounds <= hi):
+        raise OutOfRangeError(f"rounds = {rounds!r} is outside the valid range [{lo}, {hi}]")
     out = Path(out)
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
     rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose")
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
               "rivals": None, "proposal": None, "named_after": None,
-              "validation_gap_before": validation_summary(rep0), "validation_gap_after": None}  # fmt: skip
+              "validation_gap_before": validation_summary(rep0), "validation_gap_after": None, "rounds": []}  # fmt: skip
     rivals = disc.rivals_from_report(rep0, alpha)
     if rivals is None and always:
         rivals = disc.confirming_rivals(rep0)
     if rivals is None:
         result["note"] = "the diagnosis is decisive: no discrimination tests needed"
         return _finish(result, out)
-    # The researcher's side: the dataset, its floor, the lab's layout, a nominal rig; never the world.
-    ctx, white, pool = _researcher_view(ds0)
-    rng = np.random.default_rng(np.random.SeedSequence(scenario.seed, spawn_key=(POOL_STREAM, 0)))
-    tests = disc.test_pool(scenario.robot, scenario.lab, rng, n_poses, tensions)
     lab = LabCheck(scenario)  # the nominal lab, no hidden effects: block scannable, sensor in range?
+    current, dataset, report = scenario, ds0, rep0
+    for k in range(1, rounds + 1):
+        if k > 1:
+            rivals = disc.rivals_from_report(report, alpha)  # later rounds: only while undecided
+            if rivals is None:
+                break
+        entry, current, dataset, report = _discrimination_round(
+            k, scenario, current, dataset, rivals, out, lab,
+            dict(alpha=alpha, extra_tests=extra_tests, criterion=criterion, n_poses=n_poses, tensions=tensions),
+            progress,
+        )  # fmt: skip
+        result["rounds"].append(entry)
+    first, last = result["rounds"][0], result["rounds"][-1]
+    result |= {key: first[key] for key in ("rivals", "proposal", "measured_before", "measured_after")}
+    result |= {"named_after": last["named"], "validation_gap_after": last["validation_gap"],
+               "confusable_after": last["confusable"]}  # fmt: skip
+    return _finish(result, out)
+
+
+def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, options, progress):
+    """Round ``k``: propose tests that separate ``rivals`` from ``dataset``, run them in the world of
+    ``scenario`` (the original plus the earlier rounds' tests), diagnose the combined dataset.
+
+    Returns the round's record, the combined scenario, its dataset and its diagnosis.
+    """
+    from .experiment import simulate
+
+    # The researcher's side: the dataset, its floor, the lab's layout, a nominal rig; never the world.
+    ctx, white, pool = _researcher_view(dataset)
+    rng = np.random.default_rng(np.random.SeedSequence(original.seed, spawn_key=(POOL_STREAM, k - 1)))
+    tests = disc.test_pool(original.robot, original.lab, rng, options["n_poses"], options["tensions"])
+    refused_before = sum(v is not None for v in lab.refused.values())
     proposal = disc.propose(
-        ctx, white, pool, rivals, tests, scenario.lab, extra_tests, criterion, feasible=lab
+        ctx,
+        white,
+        pool,
+        rivals,
+        tests,
+        original.lab,
+        options["extra_tests"],
+        options["criterion"],
+        feasible=lab,
     )
-    result["rivals"] = rivals
-    refused = sum(v is not None for v in lab.refused.values())
-    result["proposal"] = proposal.to_dict() | {"tests_refused_by_the_lab": refused}
-    result["measured_before"] = measured_separation(ctx, white, pool, rivals)
+    refused = sum(v is not None for v in lab.refused.values()) - refused_before
+    entry = {"round": k, "rivals": rivals, "proposal": proposal.to_dict() | {"tests_refused_by_the_lab": refused},
+             "measured_before": measured_separation(ctx, white, pool, rivals)}  # fmt: skip
+    todo = out / ("proposal.toml" if k == 1 else f"proposal{k}.toml")
     write_text_atomic(
-        out / "proposal.toml", proposal_text(proposal, f"{scenario.name}_proposal", scenario.robot_name)
+        todo, proposal_text(proposal, f"{original.name}_proposal{'' if k == 1 else k}", original.robot_name)
     )
     # The world's side: the same hidden world runs the extra tests.
-    name = f"{scenario.name}_discover1"
-    text = scenario_text(scenario, proposal.tests, name,
-                         f"{scenario.name} plus {len(proposal.tests)} discrimination tests (vtestbed discover)")  # fmt: skip
-    (out / "round1").mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "round1" / "scenario.toml", text)
-    combined = load_scenario(out / "round1" / "scenario.toml")
-    _extend_dataset(ds0, out / "round1" / "dataset", combined)
-    ds1 = simulate(combined, out / "round1" / "dataset", progress=progress)
-    rep1 = diagnose(ds1, alpha=alpha, out=out / "round1" / "diagnose")
-    ctx1, white1, pool1 = _researcher_view(ds1)
-    result["measured_after"] = measured_separation(ctx1, white1, pool1, rivals)
-    result["named_after"] = rep1["named"]
-    result["validation_gap_after"] = validation_summary(rep1)
-    result["confusable_after"] = rep1["confusable"]
-    return _finish(result, out)
+    folder = out / f"round{k}"
+    text = scenario_text(scenario, proposal.tests, f"{original.name}_discover{k}",
+                         f"{original.name} plus {len(scenario.poses) - len(original.poses) + len(proposal.tests)} "
+                         f"discrimination tests in {k} round{'s' if k > 1 else ''} (vtestbed discover)")  # fmt: skip
+    folder.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(folder / "scenario.toml", text)
+    combined = load_scenario(folder / "scenario.toml")
+    _extend_dataset(dataset, folder / "dataset", combined)
+    ds = simulate(combined, folder / "dataset", progress=progress)
+    report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose")
+    ctx_k, white_k, pool_k = _researcher_view(ds)
+    entry |= {"measured_after": measured_separation(ctx_k, white_k, pool_k, rivals), "named": report["named"],
+              "confusable": report["confusable"], "validation_gap": validation_summary(report)}  # fmt: skip
+    return entry, combined, ds, report
 
 
 def validation_summary(report: dict) -> dict | None:
@@ -355,6 +322,10 @@ def _finish(result: dict, out: Path) -> dict:
     write_json_atomic(out / "discover.json", json.loads(json.dumps(result, default=float)))
     write_text_atomic(out / "discover.md", markdown(result))
     return result
+
+
+def _tests(n: int) -> str:
+    return f"{n} test" + ("" if n == 1 else "s")
 
 
 def markdown(result: dict) -> str:
@@ -377,15 +348,21 @@ def markdown(result: dict) -> str:
         .get(r["reason"], f"**Undecided** ({r['reason']})")
         + f": {names(r['rivals'])}"
         + (f" on top of {names(r['base_terms'])}" if r["base_terms"] else "") + ".",
-        f"**Proposed** {len(p['tests'])} extra tests ({p['criterion']}-optimal among {p['pool_size']} "
+        f"**Proposed** {_tests(len(p['tests']))} more ({p['criterion']}-optimal among {p['pool_size']} "
         f"candidates; {p['tests_refused_by_the_lab']} refused by the lab): predicted separation "
         f"(smallest T over the rival pairs, noise floor units) {p['separation_before']:.1f} -> "
         f"{p['separation_after']:.1f}.",
         f"Measured: the best rival `{mb['best']}` leads by BIC {mb['delta_bic']:.1f} before; "
         f"`{ma['best']}` by {ma['delta_bic']:.1f} after.",
-        "",
-        f"**After**: named {names(result['named_after'])}.",
     ]  # fmt: skip
+    for r in result["rounds"][1:]:  # the later rounds, each from the undecided diagnosis before it
+        p, ma = r["proposal"], r["measured_after"]
+        lines.append(f"**Round {r['round']}** ({r['rivals']['reason']}, after round {r['round'] - 1} named "
+                     f"{names(result['rounds'][r['round'] - 2]['named'])}): {names(r['rivals']['rivals'])}; "
+                     f"{_tests(len(p['tests']))} more, predicted separation {p['separation_before']:.1f} -> "
+                     f"{p['separation_after']:.1f}; measured: `{ma['best']}` leads by BIC {ma['delta_bic']:.1f}.")  # fmt: skip
+    n = len(result["rounds"])
+    lines += ["", f"**After**{f' {n} rounds' if n > 1 else ''}: named {names(result['named_after'])}."]
     vb, va = result.get("validation_gap_before"), result.get("validation_gap_after")
     if vb and va:
         lines.append(f"Validation prediction error over the noise floor: {vb['baseline']:.2f} with the paper's "

@@ -15,6 +15,7 @@ def _cmd_discover(args) -> int:
     result = discover(
         load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
         criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
+        rounds=args.rounds,
     )  # fmt: skip
     if args.json:
         print(dumps(result, indent=1, default=float))
@@ -47,6 +48,9 @@ def register(sub) -> None:
     p.add_argument("--always", action="store_true",
                    help="run the extra tests even after a decisive diagnosis: confirm the first name against "
                         "its closest rivals, or screen for an effect just below the level")  # fmt: skip
+    p.add_argument("--rounds", type=int, default=1,
+                   help="rounds of extra tests at most, 1-5: after the first, another runs while the "
+                        "diagnosis is still undecided (default %(default)s)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_discover)
