@@ -15,7 +15,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from vtestbed import cli
 from vtestbed.discovery import validation_summary
-from vtestbed.errors import DatasetError, UnknownNameError
+from vtestbed.errors import DatasetError, OutOfRangeError, UnknownNameError
 from vtestbed.experiment import dataset_setup, simulate
 from vtestbed.researcher.candidates import ModelContext, candidates
 from vtestbed.researcher.diagnose import Whitener, fit_model, name_effects
@@ -195,6 +195,29 @@ def test_bad_inputs_are_named(tmp_path, capsys):
     with pytest.raises(UnknownNameError, match="unknown candidate 'wobble'; valid names: base_compliance"):
         candidates(ArmKinematics(scenario.robot), ("wobble",))
     assert cli.main(["diagnose", str(tmp_path / "d"), "--alpha", "2"]) == 2
+
+
+def test_too_few_tests_for_a_candidate_and_too_few_repeat_samples_are_named(tmp_path, capsys):
+    """2 tests with repeat scans: 12 components cannot carry 6 stiffnesses and a 6-parameter term
+    (a fit would leave no residual to test, and the likelihood ratio would be a silent 0)."""
+    from dataclasses import replace
+
+    scenario = load_scenario(ROOT / "scenarios" / "kr60_paper.toml")
+    two = replace(scenario, poses=scenario.poses[:2], validation_poses=scenario.validation_poses[:0],
+                  scanner=replace(scenario.scanner, repeats=2))  # fmt: skip
+    simulate(two, tmp_path / "d")
+    argv = ["diagnose", str(tmp_path / "d"), "--candidates", "link_compliance,block_offset"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert (
+        "2 identification tests give 12 displacement components; candidate 'block_offset' (6 parameters)"
+        in err
+    )
+    assert "at least 3 tests" in err and "Traceback" not in err
+    assert cli.main([*argv[:2], "--candidates", "link_compliance"]) == 2  # 12 > 6 + 3, but the floor:
+    assert "the noise floor rests on" in capsys.readouterr().err  # 2 repeats of 2 tests: too few samples
+    with pytest.raises(OutOfRangeError, match="rests on 3 repeat-scan samples; at least 8"):
+        Whitener(NoiseFloor(np.zeros((6, 6)), n_samples=3, n_tests=2))
 
 
 def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, truth, tmp_path):

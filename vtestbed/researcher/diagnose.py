@@ -85,15 +85,15 @@ class Whitener:
 
     def __init__(self, floor: NoiseFloor):
         cov = np.asarray(floor.covariance, dtype=float)
-        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
-            raise OutOfRangeError(
-                "the noise floor's covariance must be a finite positive definite 6x6 matrix"
-            )
         nu = int(floor.n_samples)
-        if nu <= 7:
+        if nu <= 7:  # first: too few samples is also why a covariance is singular
             raise OutOfRangeError(
                 f"the noise floor rests on {nu} repeat-scan samples; at least 8 are needed to test a model "
                 "against it (record more repeat scans: 2 or more per test)"
+            )
+        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+            raise OutOfRangeError(
+                "the noise floor's covariance must be a finite positive definite 6x6 matrix"
             )
         self.inflation = nu / (nu - 7)
         self.inv_chol = np.linalg.inv(np.linalg.cholesky(cov)) / np.sqrt(self.inflation)
@@ -179,7 +179,8 @@ def stand_in_overlap(
     ms, c = ctx.measurements, fit.compliance
     a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
     span = white(np.hstack([a, *(b.columns(ctx, c) for b in base)]))
-    u = np.linalg.svd(span, full_matrices=False)[0]
+    u, s, _ = np.linalg.svd(span, full_matrices=False)
+    u = u[:, s > s[0] * 1e-10]  # a base term collinear with the stiffnesses adds no direction
 
     def project(x):
         return x - u @ (u.T @ x)
