@@ -79,8 +79,14 @@ def test_interrupted_campaign_resumes_without_loss_or_duplicates(tiny_sweep, tmp
            "--batch-trials", "1", "--no-report", "--quiet"]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None and _count_rows(out)[0] < 4:
-        time.sleep(0.05)
+    # count the finished batch files, not their rows: reading parquet between polls is slow enough
+    # on a loaded machine for the sweep to finish before the signal
+    while (
+        time.monotonic() < deadline
+        and proc.poll() is None
+        and len(list((out / TRIALS_DIR).glob("part-*.parquet"))) < 4
+    ):
+        time.sleep(0.01)
     proc.send_signal(sig)
     code = proc.wait(timeout=60)
     assert code == (-signal.SIGKILL if sig == signal.SIGKILL else 130), proc.stderr.read().decode()[-2000:]
