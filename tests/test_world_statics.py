@@ -195,3 +195,17 @@ def test_random_kr60_tests_converge(robot):
 @pytest.mark.slow
 def test_1000_random_kr60_tests_converge(robot):
     _check_random(robot, 1000)
+
+
+def test_the_newton_inverse_is_numpys_and_a_singular_tangent_is_named():
+    """LAPACK's LU inverse (statics._inverse) against np.linalg.inv on a KR60-like tangent (springs
+    of 2e7-2e9 N*m/rad plus a dense gravity part), and a stiffness-free degree of freedom."""
+    from vtestbed.world import statics
+
+    rng = np.random.default_rng(3)
+    gravity = rng.normal(scale=1e5, size=(6, 6))
+    tangent = np.diag([2.2e9, 8.9e8, 1.1e9, 6.4e7, 2.5e7, 2.0e7]) + gravity @ gravity.T / 1e5
+    np.testing.assert_allclose(statics._inverse(tangent), np.linalg.inv(tangent), rtol=1e-12, atol=0)
+    tangent[:, 3] = tangent[3, :] = 0.0
+    with pytest.raises(ConvergenceError, match="tangent stiffness is singular"):
+        statics._inverse(tangent)
