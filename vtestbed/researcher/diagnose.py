@@ -303,6 +303,17 @@ def name_effects(
     return chosen, steps, current
 
 
+def require_tests(root, n_tests: int, dof: int, n_params: int, what: str, remedy: str) -> None:
+    """A fit must leave a residual to test: ``6 T > n + p`` (``n`` stiffnesses, ``p`` ``what``'s parameters)."""
+    need = dof + n_params
+    if 6 * n_tests <= need:
+        raise DatasetError(
+            f"{root}: {n_tests} identification tests give {6 * n_tests} displacement components; {what} "
+            f"({n_params} parameters) with the {dof} stiffnesses needs more than {need}, so at least "
+            f"{need // 6 + 1} tests. {remedy}"
+        )
+
+
 def require_floor(floor: NoiseFloor | None, root) -> NoiseFloor:
     if floor is None:
         raise DatasetError(

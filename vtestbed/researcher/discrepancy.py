@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatasetError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
@@ -30,6 +29,7 @@ from .diagnose import (
     fit_model,
     name_effects,
     require_floor,
+    require_tests,
     validation_gap,
 )
 from .kinematics import ArmKinematics
@@ -56,7 +56,10 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
     pool = candidates(kin, names)
-    require_tests_for(pool, len(ident), kin.robot.dof, root)
+    if pool:  # the candidate with the most parameters must still leave a residual to test
+        widest = max(pool, key=lambda c: len(c.params))
+        require_tests(root, len(ident), kin.robot.dof, len(widest.params), f"candidate {widest.label!r}",
+                      "Record more tests or leave it out (--candidates)")  # fmt: skip
     exact = baseline_statics(statics, kin, setup)
     ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
@@ -108,20 +111,6 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
         write_report(report, Path(out), kin.robot.joint_names)
         write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot, statics))
     return report
-
-
-def require_tests_for(pool, n_tests: int, dof: int, root) -> None:
-    """Every candidate must leave a residual to test: ``6 T > n + p`` (``p`` its parameters)."""
-    if not pool:
-        return
-    widest = max(pool, key=lambda c: len(c.params))
-    need = dof + len(widest.params)
-    if 6 * n_tests <= need:
-        raise DatasetError(
-            f"{root}: {n_tests} identification tests give {6 * n_tests} displacement components; candidate "
-            f"{widest.label!r} ({len(widest.params)} parameters) with the {dof} stiffnesses needs more than "
-            f"{need}, so at least {need // 6 + 1} tests. Record more tests or leave it out (--candidates)"
-        )
 
 
 def dropped_notes(steps, kept=()) -> dict:

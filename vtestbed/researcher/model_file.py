@@ -20,7 +20,7 @@ from .candidates import (
     ModelContext,
     candidates,
 )
-from .diagnose import Whitener, fit_model, require_floor, validation_gap
+from .diagnose import Whitener, fit_model, require_floor, require_tests, validation_gap
 from .kinematics import ArmKinematics
 from .measure import load_measurements
 from .noise_floor import estimate_noise_floor
@@ -96,10 +96,8 @@ def identify_with_model(root, model_path) -> dict:
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
     ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
-    if 6 * len(ident) <= kin.robot.dof + sum(len(t.params) for t in terms):
-        raise DatasetError(
-            f"{root}: {len(ident)} tests are too few for the model's {len(terms)} terms and the stiffness"
-        )
+    require_tests(root, len(ident), kin.robot.dof, sum(len(t.params) for t in terms),
+                  f"the model's {len(terms)} terms", "Record more tests or name fewer terms in the model file")  # fmt: skip
     fit = fit_model(ctx, white, terms)
     return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
             "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
