@@ -6,7 +6,8 @@ Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--demo]
 Every figure is measured in a fresh interpreter (``sys.executable``), the median of
 ``--repeats`` runs; the machine's load average is printed beside them because other users only
 ever slow a start-up down. Memory is resident memory after the import (/proc/self/statm) and
-the process's peak (``resource.getrusage``).
+the process's own peak (VmHWM, :func:`vtestbed.campaigns.worker.peak_rss_mib`; ``getrusage``'s
+``ru_maxrss`` would include the parent's resident size, which Linux carries over fork and exec).
 
 The worker figure is a real worker's life: unpickle a task of the quick campaign's base scenario
 (20 tests, as the paper campaign's largest test lists), import what that needs, prepare the
@@ -45,12 +46,13 @@ MODULES = [
     "vtestbed.experiment",
 ]
 IMPORT_PROBE = """
-import resource, sys, time
+import sys, time
 t0 = time.perf_counter()
 import {module}
 wall = time.perf_counter() - t0
 rss = int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
-print(wall, rss, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, len(sys.modules))
+peak = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM:")) / 1024  # own peak
+print(wall, rss, peak, len(sys.modules))
 """
 WORKER_PROBE = """
 import json, pickle, resource, sys, time

@@ -222,7 +222,8 @@ def main() -> None:
     if args.paper or args.paper_efficiency:
         wall_p, sp_ = paper_run()
         print(f"- paper campaign: {wall_p:.0f} s on 2 workers ({sp_.tests_run / wall_p:.1f} virtual tests/s)   "
-              f"target <= {TARGET_PAPER_S:.0f} s: {_verdict(wall_p <= TARGET_PAPER_S)}")  # fmt: skip
+              f"target <= {TARGET_PAPER_S:.0f} s: {_verdict(wall_p <= TARGET_PAPER_S)}; worker peak resident "
+              f"{sp_.worker_peak_rss_mib:.0f} MiB")  # fmt: skip
         if args.paper_efficiency:
             wall_1, _ = paper_run(workers=1)
             eff_p = wall_1 / (2 * wall_p)

@@ -67,6 +67,29 @@ def test_a_worker_process_loads_no_reporting_libraries_and_computes_the_trial(tm
     assert 50.0 < report["peak"] < 2000.0  # MiB: the figure is reported (the target is a benchmark's)
 
 
+PEAK_SCRIPT = """
+import sys
+import numpy as np
+from vtestbed.campaigns.worker import peak_rss_mib
+before = peak_rss_mib()
+block = np.ones(int(sys.argv[1]) * 2**20 // 8)  # touched: resident
+print(before, peak_rss_mib())
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="VmHWM is Linux's")
+def test_a_workers_peak_memory_is_its_own_not_its_parents():
+    """A spawned worker is forked from its parent, then exec'd; its peak must not include the
+    parent's resident memory (``ru_maxrss`` does on Linux). Reference: the size it allocates."""
+    parent_block = np.ones(400 * 2**20 // 8)  # this process: 400 MiB more resident
+    out = subprocess.run([sys.executable, "-c", PEAK_SCRIPT, "120"], capture_output=True, text=True,
+                         timeout=120, check=True)  # fmt: skip
+    before, after = map(float, out.stdout.split())
+    assert before < 250.0  # its imports only: not the 400 MiB parent
+    assert 115.0 < after - before < 135.0  # the 120 MiB it touched
+    del parent_block
+
+
 def test_prepared_tests_share_one_ray_table_and_rebuild_the_cast_hits_bit_for_bit():
     from vtestbed.world.physics import run_test_physics
     from vtestbed.world.rig import Rig
