@@ -36,6 +36,7 @@ class Candidate:
     params: tuple[str, ...]  # parameter names with units
     columns: Callable
     bilinear: bool = False  # columns depend on the compliances (refit after an update)
+    absorbed: tuple = ()  # (parameter, note): left out, the stiffnesses explain it (diagnose.identifiable)
 
 
 @dataclass

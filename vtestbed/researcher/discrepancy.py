@@ -66,7 +66,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     base = fit_model(ctx, white, [])
     chosen, steps, final = name_effects(ctx, white, pool, alpha)
     names_chosen = {c.label for c in chosen}
-    absorbed = {}
+    absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}
     for cand in pool:
         if cand.label not in names_chosen:
             note = absorbed_by(ctx, white, cand, final.compliance, kin.robot.joint_names)

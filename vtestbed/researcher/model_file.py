@@ -20,7 +20,7 @@ from .candidates import (
     ModelContext,
     candidates,
 )
-from .diagnose import Whitener, fit_model, require_floor, require_tests, validation_gap
+from .diagnose import Whitener, fit_model, identifiable, require_floor, require_tests, validation_gap
 from .kinematics import ArmKinematics
 from .measure import load_measurements
 from .noise_floor import estimate_noise_floor
@@ -98,6 +98,7 @@ def identify_with_model(root, model_path) -> dict:
     ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
     require_tests(root, len(ident), kin.robot.dof, sum(len(t.params) for t in terms),
                   f"the model's {len(terms)} terms", "Record more tests or name fewer terms in the model file")  # fmt: skip
+    terms = identifiable(ctx, white, terms, fit_model(ctx, white, []).compliance)
     fit = fit_model(ctx, white, terms)
     return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
             "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
