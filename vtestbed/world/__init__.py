@@ -14,7 +14,8 @@ from .effects import EFFECTS, WorldEffect
 from .mjcf import SceneEffect, build_robot_spec, build_scene_spec, model_files, write_model_files
 from .physics import TestPhysics, draw_readings, run_test_physics, test_rng
 from .repeats import draw_repeat_scans, repeat_rng
-from .rig import Rig, RigState
+from .rig import Rig
+from .rig_state import RigState
 from .scan_noise import NoisyScan, ScanGeometry, ScanNoise, scaled_noise
 from .scanner import Scanner
 from .sensors import ForceTorqueSensor

@@ -32,7 +32,8 @@ from ..clearance import (
 )
 from ..target_geometry import Polytope
 from . import mjcf
-from .rig import Rig, RigState
+from .rig import Rig
+from .rig_state import RigState
 
 _DISTMAX = 10.0  # m: mj_geomDistance reports at most this; every pair of the scene is closer
 

@@ -20,7 +20,8 @@ import numpy as np
 from ..clearance import ClearanceReport
 from ..transforms import displacement_in_block_frame
 from .clearance import describe_test, truth_clearance
-from .rig import Rig, RigState
+from .rig import Rig
+from .rig_state import RigState
 from .scan_noise import ScanGeometry, ScanNoise
 from .scanner import Scanner
 from .sensors import ForceTorqueSensor

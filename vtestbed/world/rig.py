@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import operator
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -27,6 +26,7 @@ from ..errors import ConvergenceError, OutOfRangeError, check_range
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, load_robot
 from . import mjcf, statics
+from .rig_state import RigState
 from .truth import RobotTruth, load_truth
 
 TENSION_TOL = 1e-6  # N; holding the tension reaches ~1e-10 N
@@ -35,32 +35,6 @@ TENSION_TOL = 1e-6  # N; holding the tension reaches ~1e-10 N
 # and its steps in L (ulp(1e15 m) = 0.125 m) move the pull by T * eps; its rate is nil, so the
 # Newton tangent carries only the turning of the wire's direction under T.
 HOLD_OFFSET = 1e15  # m
-
-
-@dataclass(frozen=True)
-class RigState:
-    """What the world looks like at equilibrium (SI; poses in the robot base frame).
-
-    ``sensor_wrench`` is the load that everything below the sensor puts on it (gravity of the
-    tool side plus the wire), as an ATI sensor reports it: (Fx, Fy, Fz, Tx, Ty, Tz) [N, N*m]
-    in the sensor frame, torques about the sensor origin.
-    """
-
-    q_cmd: np.ndarray  # (n,) DH rad
-    q: np.ndarray  # (n,) DH rad, true joint angles
-    deflection: np.ndarray  # (n,) rad, q - q_cmd
-    qpos_all: np.ndarray  # (nq,) every dof of the world, incl. effects' joints
-    flange_pose: np.ndarray  # (4, 4)
-    block_pose: np.ndarray  # (4, 4) block frame B
-    sensor_pose: np.ndarray  # (4, 4)
-    sensor_wrench: np.ndarray  # (6,)
-    wire_tension: float  # N, 0 when slack
-    wire_length: float  # m
-    wire_rest_length: float  # m (mjcf.SLACK_LENGTH when slack)
-    wire_direction: np.ndarray  # (3,) unit vector hook -> anchor
-    hook_position: np.ndarray  # (3,)
-    residual: float  # N*m, max |generalized force residual|
-    iterations: int
 
 
 class Rig:
