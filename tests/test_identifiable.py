@@ -70,3 +70,22 @@ def test_joint_1_comes_out_in_series_with_the_twist_and_the_tilts_are_the_worlds
     # the whole candidate: least squares splits joint 1 between it and the twist (minimum norm)
     split = fit_model(ctx, white, [base])
     assert abs(split.stiffness[0] / series - 1.0) > 0.05
+
+
+def test_a_term_that_adds_no_direction_adds_no_degree_of_freedom(foundation):
+    """Link 2 bending in its plane is a rotation about an axis parallel to joints 2 and 3 at a point
+    between them: a combination of joint 2's and joint 3's rotations, so its compliance lies in the
+    span of theirs and their coupling's (closed form below). With link 2 in the model, the
+    coupling adds no direction: rank, not parameter count, is what the tests count."""
+    ctx, white, _ = foundation
+    link2 = next(c for c in candidates(ctx.kin, ("link_compliance",)) if c.label == "link_compliance(link 2)")
+    coupling = next(c for c in candidates(ctx.kin, ("joint_coupling",)) if c.label == "joint_coupling(2,3)")
+    ms = ctx.measurements
+    a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
+    in_plane = link2.columns(ctx, None)[:, :1]
+    span = np.hstack([a[:, 1:3], coupling.columns(ctx, None)])
+    coef, *_ = np.linalg.lstsq(span, in_plane, rcond=None)
+    assert np.linalg.norm(span @ coef - in_plane) < 1e-9 * np.linalg.norm(in_plane)
+    alone, both = fit_model(ctx, white, [link2]), fit_model(ctx, white, [link2, coupling])
+    assert alone.rank == 6 + 3 and both.rank == alone.rank  # the search's df: both.rank - alone.rank = 0
+    assert both.dof == alone.dof

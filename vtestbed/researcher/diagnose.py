@@ -6,7 +6,8 @@ missing effect, add it, and show the gap shrink. Researcher side: it reads a dat
    chi^2 (with ``6 T - n`` degrees of freedom) tests the model against the noise, not against
    itself (FGLS's own reduced chi^2 is 1 by construction).
 2. **Name.** Each candidate term (:mod:`.candidates`) is added in turn; a likelihood-ratio test
-   (``chi2_base - chi2_candidate`` against chi^2 with the candidate's parameter count) at a
+   (``chi2_base - chi2_candidate`` against chi^2 with as many degrees of freedom as the candidate
+   adds independent columns: its parameter count, less any its columns share with the model) at a
    family-wise error rate ``alpha`` (Bonferroni over the candidates still in play) decides
    whether it is needed; the significant ones are ranked by BIC; the best is kept, the terms
    kept before are re-tested given the others and dropped when no longer needed (backward
@@ -53,6 +54,7 @@ class ModelFit:
     residuals: np.ndarray  # (T, 6) measured - predicted
     x: np.ndarray = field(repr=False)
     compliance_std: np.ndarray = field(default=None, repr=False)  # (n,) rad/(N*m), noise floor as known
+    rank: int = 0  # independent columns of the fitted design: the parameters the data determine
 
     @property
     def stiffness(self) -> np.ndarray:
@@ -123,7 +125,7 @@ def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterat
             gap = ctx.statics.gap(ms, c)
         cols = [t.columns(ctx, c) for t in terms]
         x_mat = np.hstack([a, *cols]) if cols else a
-        x, cov = _lstsq(white(x_mat), white(d - gap))
+        x, cov, rank = _lstsq(white(x_mat), white(d - gap))
         c = x[:n]
     x_mat = np.hstack([a, *cols]) if cols else a
     residuals = d - gap - x_mat @ x
@@ -135,20 +137,23 @@ def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterat
         theta[term.label] = dict(zip(term.params, x[k : k + p].tolist()))
         theta_std[term.label] = dict(zip(term.params, std[k : k + p].tolist()))
         k += p
-    dof = len(d) - len(x)
+    dof = len(d) - rank
     labels = tuple(t.label for t in terms)
-    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n])
+    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n], rank)
 
 
 def _lstsq(xw: np.ndarray, dw: np.ndarray):
-    """Column-scaled least squares; returns the solution and its covariance (whitened units)."""
+    """Column-scaled least squares; returns the solution, its covariance (whitened units) and the
+    rank. Directions below 1e-12 of the largest singular value are left out (minimum norm): the
+    likelihood-ratio tests count degrees of freedom by rank, so a term that adds none is never
+    significant (a link 2 bending in plane is joints 2 and 3 plus their coupling)."""
     norms = np.linalg.norm(xw, axis=0)
     norms[norms == 0] = 1.0
     u, s, vt = np.linalg.svd(xw / norms, full_matrices=False)
     keep = s > s[0] * 1e-12
     x = (vt[keep].T @ ((u[:, keep].T @ dw) / s[keep])) / norms
     cov = ((vt[keep].T / s[keep] ** 2) @ vt[keep]) / np.outer(norms, norms)
-    return x, cov
+    return x, cov, int(keep.sum())
 
 
 def _explained(aw: np.ndarray, bw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -272,7 +277,7 @@ def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n
         for term in chosen:
             others = [t for t in chosen if t is not term]
             fit = fit_model(ctx, white, others)
-            lr, df = max(fit.chi2 - current.chi2, 0.0), len(current.x) - len(fit.x)
+            lr, df = max(fit.chi2 - current.chi2, 0.0), current.rank - fit.rank
             p = float(chdtrc(df, lr)) if df > 0 else 1.0
             if p >= level and (worst is None or p > worst[0]):
                 worst = (p, term, fit, lr, df, [t.label for t in others])
@@ -310,10 +315,10 @@ def name_effects(
         rows, best = [], None
         for cand in remaining:
             fit = fit_model(ctx, white, [*chosen, cand])
-            df = len(fit.x) - len(current.x)
+            df = fit.rank - current.rank
             lr = max(current.chi2 - fit.chi2, 0.0)
             p = float(chdtrc(df, lr)) if df > 0 else 1.0
-            bic = fit.chi2 + len(fit.x) * np.log(n_obs)
+            bic = fit.chi2 + fit.rank * np.log(n_obs)
             sig = p < alpha / len(remaining)
             rows.append({"label": cand.label, "name": cand.name, "lr": lr, "df": df, "p_value": p,
                          "bic": float(bic), "significant": bool(sig)})  # fmt: skip
