@@ -71,6 +71,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     CONFUSABLE_BIC,
     Whitener,
     fit_model,
+    identifiable,
     name_effects,
     validation_gap,
 )
@@ -289,9 +290,10 @@ def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
     family = [c for c in pool if c.name == name]
     if not family:
         return {"lambda": base.chi2, "df": base.dof, "test": "detection", "level": ALPHA, "label": None}
-    fits = [(base.chi2 - fit_model(ctx, white, [c]).chi2, c) for c in family]
-    lam, cand = max(fits, key=lambda x: x[0])
-    return {"lambda": float(lam), "df": len(cand.params), "test": "naming", "level": ALPHA / len(pool),
+    family = identifiable(ctx, white, family, base.compliance)  # the parameters the search tests
+    fits = [(base.chi2 - (fit := fit_model(ctx, white, [c])).chi2, c, fit.rank - base.rank) for c in family]
+    lam, cand, df = max(fits, key=lambda x: x[0])
+    return {"lambda": float(lam), "df": df, "test": "naming", "level": ALPHA / len(pool),
             "label": cand.label}  # fmt: skip
 
 
