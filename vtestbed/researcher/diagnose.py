@@ -189,7 +189,7 @@ def identifiable(ctx: ModelContext, white: Whitener, terms: list[Candidate], com
     be told from them by these tests: a twist of the base about its z axis is joint 1's compliance
     when joint 1 turns about that axis. Left in the fit, least squares would split the compliance
     between the two by minimum norm and report both with the small std of the directions it kept
-    (measured: joint 1's stiffness 4.29e6 +- 0.1e6 N*m/rad for a true 2.2e6). A term all of whose
+    (measured: joint 1 at 4.29e6 +- 0.11e6 N*m/rad, in series with the twist 2.15e6). A term all of whose
     parameters are explained is kept whole: its likelihood ratio is 0 and :func:`absorbed_by`
     reports it.
     """
