@@ -6,6 +6,7 @@ theory for the detection statistic under a known Gaussian noise; the world's tru
 in the test, never by the workflow) for the named effect and the recovered stiffness.
 """
 
+import json
 import re
 from pathlib import Path
 
@@ -239,6 +240,14 @@ def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, truth, tmp_p
     bad.write_text(model.read_text().replace('"kuka_kr60_3"', '"ur10"'))
     with pytest.raises(DatasetError, match="robot = 'ur10' does not match the dataset's robot 'kuka_kr60_3'"):
         identify_with_model(hidden_dataset, bad)
+    # link 2's in-plane bending is joints 2 and 3 plus their coupling (tests/test_identifiable.py)
+    data = json.loads(model.read_text())
+    data["terms"] = ["link_compliance(link 2)", "joint_coupling(2,3)"]
+    bad.write_text(json.dumps(data))
+    with pytest.raises(DatasetError, match=r"'joint_coupling\(2,3\)' shares 1 of its 1 directions with the "
+                       r"stiffnesses and link_compliance\(link 2\)"):  # fmt: skip
+        identify_with_model(hidden_dataset, bad)
+    assert cli.main(["identify", str(hidden_dataset), "--model", str(bad), "--quiet", "--no-truth"]) == 2
 
 
 def test_geometric_error_candidate_recovers_the_worlds_dh_deviations(paper, truth):

@@ -98,7 +98,26 @@ def identify_with_model(root, model_path) -> dict:
     ctx, white = ModelContext(ident, setup, kin, exact), Whitener(floor)
     require_tests(root, len(ident), kin.robot.dof, sum(len(t.params) for t in terms),
                   f"the model's {len(terms)} terms", "Record more tests or name fewer terms in the model file")  # fmt: skip
-    terms = identifiable(ctx, white, terms, fit_model(ctx, white, []).compliance)
+    base = fit_model(ctx, white, [])
+    terms = identifiable(ctx, white, terms, base.compliance)
+    _require_determined(ctx, white, terms, base.rank, model_path)
     fit = fit_model(ctx, white, terms)
     return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
             "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
+
+
+def _require_determined(ctx, white, terms, rank: int, model_path) -> None:
+    """Each term must add as many directions as it has parameters, or least squares would split
+    the shared ones by minimum norm and report a small std (diagnose's search never names such a
+    pair: the second term adds no degree of freedom; a model file written by hand can)."""
+    for k, term in enumerate(terms):
+        grown = fit_model(ctx, white, terms[: k + 1]).rank
+        if grown - rank < len(term.params):
+            shared = len(term.params) - (grown - rank)
+            earlier = ", ".join(t.label for t in terms[:k]) or "no term"
+            raise DatasetError(
+                f"{model_path}: terms: {term.label!r} shares {shared} of its {len(term.params)} directions "
+                f"with the stiffnesses and {earlier} on these tests, so its parameters are not determined; "
+                "leave it out (or the term it duplicates)"
+            )
+        rank = grown
