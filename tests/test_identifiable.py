@@ -14,7 +14,7 @@ import pytest
 from test_researcher_discrepancy import PAPER, SIGMA, world_measurements
 
 from vtestbed.researcher.candidates import ModelContext, candidates
-from vtestbed.researcher.diagnose import Whitener, fit_model, identifiable
+from vtestbed.researcher.diagnose import Whitener, _drop_redundant, fit_model, identifiable
 from vtestbed.researcher.identify import stack
 from vtestbed.researcher.noise_floor import NoiseFloor
 from vtestbed.researcher.statics import ExactStatics
@@ -89,3 +89,7 @@ def test_a_term_that_adds_no_direction_adds_no_degree_of_freedom(foundation):
     alone, both = fit_model(ctx, white, [link2]), fit_model(ctx, white, [link2, coupling])
     assert alone.rank == 6 + 3 and both.rank == alone.rank  # the search's df: both.rank - alone.rank = 0
     assert both.dof == alone.dof
+    # named in the other order, the backward step drops the coupling: link 2 contains it (df 0)
+    kept, _, dropped = _drop_redundant(ctx, white, [coupling, link2], both, 0.01, 14)
+    assert [t.label for t in kept] == ["link_compliance(link 2)"]
+    assert dropped[0]["label"] == "joint_coupling(2,3)" and dropped[0]["df"] == 0

@@ -110,8 +110,8 @@ def _require_determined(ctx, white, terms, rank: int, model_path) -> None:
     """Each term must add as many directions as it has parameters, or least squares would split
     the shared ones by minimum norm and report a small std. diagnose's search never names a term
     that adds no direction (its likelihood ratio has no degree of freedom); a model file written
-    by hand can. (A term that shares only some of its directions with the terms named before it
-    is not yet reduced by the search; this check refuses it here too.)"""
+    by hand can; and when a later term contains an earlier one (link 2 contains
+    ``joint_coupling(2,3)``), the search's backward step drops the earlier one (df 0)."""
     for k, term in enumerate(terms):
         grown = fit_model(ctx, white, terms[: k + 1]).rank
         if grown - rank < len(term.params):
