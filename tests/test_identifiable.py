@@ -90,6 +90,6 @@ def test_a_term_that_adds_no_direction_adds_no_degree_of_freedom(foundation):
     assert alone.rank == 6 + 3 and both.rank == alone.rank  # the search's df: both.rank - alone.rank = 0
     assert both.dof == alone.dof
     # named in the other order, the backward step drops the coupling: link 2 contains it (df 0)
-    kept, _, dropped = _drop_redundant(ctx, white, [coupling, link2], both, 0.01, 14)
+    kept, _, dropped = _drop_redundant(ctx, white, [coupling, link2], both, 0.01, 14, 3)
     assert [t.label for t in kept] == ["link_compliance(link 2)"]
     assert dropped[0]["label"] == "joint_coupling(2,3)" and dropped[0]["df"] == 0

@@ -19,12 +19,13 @@ MAX_RIVALS = 4  # models in one discrimination design
 def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     """The models a diagnosis leaves undecided, from ``diagnose``'s report; None when it is decisive.
 
-    A candidate is *plausible* in a round when its Bonferroni-adjusted p-value is below
-    :data:`MARGINAL_FACTOR` times ``alpha``. The rounds are read in order:
+    A candidate is *plausible* in a round when its p-value is below :data:`MARGINAL_FACTOR` times
+    the round's level (``diagnose.step_level``: ``alpha`` over the candidates in play, shared by
+    the rounds after a first name). The rounds are read in order:
 
     * *confusable*: the runner-up is within :data:`CONFUSABLE_BIC` of the chosen term; the rivals
       are the plausible candidates that close to it (the chosen one first);
-    * *marginal*, a weak name: the chosen term's adjusted p-value is above ``alpha /``
+    * *marginal*, a weak name: the chosen term's p-value is above its round's level over
       :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
       within :data:`CONFUSABLE_BIC` of the chosen one;
     * *marginal*, nothing named: the round's baseline and the plausible candidates within
@@ -39,9 +40,11 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     for k, rnd in enumerate(report["rounds"]):
         if rnd["chosen"] in dropped:
             continue
-        m = len(rnd["tests"])
+        level = rnd.get("level") or alpha / len(rnd["tests"])  # reports before 2026-11-25: alpha / m
+        if alpha != report["alpha"]:  # another alpha than the diagnosis used: the same split of it
+            level *= alpha / report["alpha"]
         plausible = sorted(
-            (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] * m < MARGINAL_FACTOR * alpha),
+            (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] < MARGINAL_FACTOR * level),
             key=lambda t: t["bic"],
         )
         chosen = next((t for t in rnd["tests"] if t["label"] == rnd["chosen"]), None)
@@ -54,7 +57,7 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
         if chosen and rnd["delta_bic"] is not None and rnd["delta_bic"] < CONFUSABLE_BIC:
             return {"reason": "confusable", "rivals": close[:MAX_RIVALS], **base}
-        if chosen is None or chosen["p_value"] * m > alpha / MARGINAL_FACTOR:
+        if chosen is None or chosen["p_value"] > level / MARGINAL_FACTOR:
             return {"reason": "marginal", "rivals": [BASELINE, *close][:MAX_RIVALS], **base}
     return None
 

@@ -93,7 +93,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
             {"chosen": s.chosen, "runner_up": s.runner_up, "delta_bic": s.delta_bic}
             for s in steps if s.chosen in names_chosen and s.delta_bic is not None and s.delta_bic < CONFUSABLE_BIC
         ],
-        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "chosen": s.chosen,
+        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "level": s.level, "chosen": s.chosen,
                     "runner_up": s.runner_up, "delta_bic": s.delta_bic, "tests": s.tests,
                     "dropped": list(s.dropped)}
                    for s in steps],
