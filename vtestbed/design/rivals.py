@@ -40,9 +40,9 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     for k, rnd in enumerate(report["rounds"]):
         if rnd["chosen"] in dropped:
             continue
-        level = rnd.get("level") or alpha / len(rnd["tests"])  # reports before 2026-11-25: alpha / m
-        if alpha != report["alpha"]:  # another alpha than the diagnosis used: the same split of it
-            level *= alpha / report["alpha"]
+        # the diagnosis's level (reports before 2026-11-25 have none: its alpha over the m tests),
+        # scaled when another alpha is asked for: the same split of it
+        level = (rnd.get("level") or report["alpha"] / len(rnd["tests"])) * (alpha / report["alpha"])
         plausible = sorted(
             (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] < MARGINAL_FACTOR * level),
             key=lambda t: t["bic"],
