@@ -100,26 +100,28 @@ def identify_with_model(root, model_path) -> dict:
                   f"the model's {len(terms)} terms", "Record more tests or name fewer terms in the model file")  # fmt: skip
     base = fit_model(ctx, white, [])
     terms = identifiable(ctx, white, terms, base.compliance)
-    _require_determined(ctx, white, terms, base.rank, model_path)
-    fit = fit_model(ctx, white, terms)
+    fit = _fit_determined(ctx, white, terms, base, model_path)
     return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
             "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
 
 
-def _require_determined(ctx, white, terms, rank: int, model_path) -> None:
-    """Each term must add as many directions as it has parameters, or least squares would split
-    the shared ones by minimum norm and report a small std. diagnose's search never names a term
-    that adds no direction (its likelihood ratio has no degree of freedom); a model file written
-    by hand can; and when a later term contains an earlier one (link 2 contains
-    ``joint_coupling(2,3)``), the search's backward step drops the earlier one (df 0)."""
+def _fit_determined(ctx, white, terms, base, model_path):
+    """The fit of ``base`` plus ``terms``, each of which must add as many directions as it has
+    parameters, or least squares would split the shared ones by minimum norm and report a small
+    std. diagnose's search never names a term that adds no direction (its likelihood ratio has no
+    degree of freedom); a model file written by hand can; and when a later term contains an
+    earlier one (link 2 contains ``joint_coupling(2,3)``), the search's backward step drops the
+    earlier one (df 0). The terms are added one at a time; the last fit is the model's."""
+    fit = base
     for k, term in enumerate(terms):
-        grown = fit_model(ctx, white, terms[: k + 1]).rank
-        if grown - rank < len(term.params):
-            shared = len(term.params) - (grown - rank)
+        grown = fit_model(ctx, white, terms[: k + 1])
+        if grown.rank - fit.rank < len(term.params):
+            shared = len(term.params) - (grown.rank - fit.rank)
             earlier = ", ".join(t.label for t in terms[:k]) or "no term"
             raise DatasetError(
                 f"{model_path}: terms: {term.label!r} shares {shared} of its {len(term.params)} directions "
                 f"with the stiffnesses and {earlier} on these tests, so its parameters are not determined; "
                 "leave it out (or the term it duplicates)"
             )
-        rank = grown
+        fit = grown
+    return fit
