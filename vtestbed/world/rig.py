@@ -91,6 +91,7 @@ class Rig:
         self._qpos, self._qvel, self._qfrc_passive = self.data.qpos, self.data.qvel, self.data.qfrc_passive
         self._ten_spring, self._ten_stiffness = m.tendon_lengthspring, m.tendon_stiffness  # model's too
         self._applied = np.zeros(m.nv)
+        self._spring_tangent = statics.joint_spring_tangent(m)  # constant: the bulk of the tangent
         self._external: tuple[np.ndarray, np.ndarray] | None = None
         self.hook_name = next(iter(self.lab.block.hooks))
         self.anchor_name = next(iter(self.lab.table.anchors))
@@ -209,6 +210,15 @@ class Rig:
             k -= statics.central_difference(self._applied_force_at, qpos)
         return k
 
+    def _tangent_estimate(self, qpos: np.ndarray) -> np.ndarray:
+        """(nv, nv) the springs' tangent (:func:`statics.spring_tangent`) plus the joint-level
+        effects' [N*m/rad], for a cold solve; reads the tendons the residual call at ``qpos`` left."""
+        k = statics.spring_tangent(self.model, self.data, self._spring_tangent)
+        if self._joint_effects:
+            jq, jd = self._joint_qpos, self._joint_dof
+            k[np.ix_(jd, jd)] -= statics.central_difference(self._effect_forces, qpos[jq])
+        return k
+
     def residual_tolerance(self, qpos) -> np.ndarray:
         """(nv,) the tolerance [N*m] :meth:`solve` asks of each residual component at ``qpos``."""
         qpos = np.asarray(qpos, dtype=float)
@@ -252,6 +262,7 @@ class Rig:
             tangent0,
             tangent0_exact,
             inverse0,
+            self._tangent_estimate,
         )
 
     def solve(self, max_iterations: int = 50, tol: float | None = None) -> RigState:
