@@ -67,7 +67,8 @@ class Equilibrium:
     residual_calls, tangent_calls : int
         Evaluations of the residual and of the tangent stiffness.
     tangent : (nv, nv) array
-        The latest tangent stiffness [N*m/rad] (evaluated at or near ``qpos``).
+        The latest tangent stiffness [N*m/rad] (evaluated at or near ``qpos``; the ``estimate``
+        when the solve needed no exact one).
     inverse : (nv, nv) array or None
         Its inverse [rad/(N*m)], when the solver formed it.
     """
