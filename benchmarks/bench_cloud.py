@@ -102,7 +102,10 @@ def main() -> None:
         f"fast (nominal segmentation, SVD)   {wall['fast']:9.2f}  {proc['fast']:9.2f}   target <= {TARGET_MS:g} ms"
     )
     print(f"RANSAC (open3d, today's chain)     {wall['ransac']:9.2f}  {proc['ransac']:9.2f}")
-    print(f"prototype floor                    {FLOOR_MS[0]:g}-{FLOOR_MS[1]:g}")
+    print(
+        f"prototype floor                    {FLOOR_MS[0]:g}-{FLOOR_MS[1]:g}   "
+        f"fast / floor {wall['fast'] / FLOOR_MS[1]:.2f}-{wall['fast'] / FLOOR_MS[0]:.2f}x"
+    )
     print(
         f"speed-up {wall['ransac'] / wall['fast']:.1f}x (wall), {proc['ransac'] / proc['fast']:.1f}x (CPU); "
         f"fallback with the face search (nominal 30 deg off): {t_far * 1e3:.0f} ms"

@@ -109,17 +109,22 @@ def main() -> None:
         f"  one residual {t_res * 1e6:.1f} us, one tangent (mjd_inverseFD) {t_tan * 1e6:.1f} us, readout {t_read * 1e6:.1f} us"
     )
     print(
-        f"  {'stage':14s} {'time':>9s} {'target':>8s} {'work':>8s} {'floor (issue 12)':>28s} {'calls res/tan (median, max)':>28s}  before"
+        f"  {'stage':14s} {'time':>9s} {'target':>8s} {'work':>8s} {'floor (issue 12), time/floor':>36s} {'calls res/tan (median, max)':>28s}  before"
     )
     for name in times:
         res = np.array([c[0] for c in counts[name]])
         tan = np.array([c[1] for c in counts[name]])
         work = np.median(res) * t_res + np.median(tan) * t_tan + (t_read if name != "Newton, taut" else 0.0)
         target = f"{TARGET[name] * 1e6:6.0f} us" if name in TARGET else "       -"
-        floor = f"{FLOOR[name][0] * 1e6:.0f} us, {FLOOR[name][1]}" if name in FLOOR else "-"
+        t = np.median(times[name])
+        floor = (
+            f"{FLOOR[name][0] * 1e6:.0f} us ({t / FLOOR[name][0]:.2f}x), {FLOOR[name][1]}"
+            if name in FLOOR
+            else "-"
+        )
         before = f"{BEFORE[name][0] * 1e6:.0f} us, {BEFORE[name][1]} residuals" if name in BEFORE else "-"
         print(
-            f"  {name:14s} {np.median(times[name]) * 1e6:6.1f} us {target} {work * 1e6:5.1f} us {floor:>28s} "
+            f"  {name:14s} {t * 1e6:6.1f} us {target} {work * 1e6:5.1f} us {floor:>36s} "
             f"{np.median(res):6.0f}/{np.median(tan):.0f} ({res.max()}/{tan.max()}){'':>12s}  {before}"
         )
     feasible, overloaded, failed = _random_tests()

@@ -85,7 +85,9 @@ def main() -> None:
         times.append(t)
         notes = []
         if n in BEFORE:
-            notes.append(f"before {BEFORE[n]:g} s, prototype {PROTOTYPE[n]:g} s")
+            notes.append(
+                f"before {BEFORE[n]:g} s, prototype (floor) {PROTOTYPE[n]:g} s: {t / PROTOTYPE[n]:.2f}x"
+            )
         if n == 500:
             notes.append(f"target < {TARGET_500_S:g} s: {'met' if t < TARGET_500_S else 'MISSED'}")
         print(f"  {n:5d} tests: {t * 1e3:8.2f} ms  ({repeats} repeats)  {'; '.join(notes)}")
