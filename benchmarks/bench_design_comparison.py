@@ -27,7 +27,7 @@ SIGMA_P / SIGMA_R, at the truth). Panels: tensions up to 200 N and up to the lab
 are cached in ``--cache`` (shared machinery: ``bench_design_uncertainty.measure``).
 
 Run: .venv/bin/python benchmarks/bench_design_comparison.py [--trials 40] [--panels 200,limit]
-       [--figure docs/img/poses/design_comparison.png] [--table]
+       [--figure docs/img/poses/design_comparison.png] [--table] [--method fgls|gls_floor]
 (one worker: 8.5 min for both panels from scratch on this shared machine, seconds from the cache;
 docs/poses.md, "Comparison through the full pipeline").
 """
@@ -166,14 +166,14 @@ def run_panel(base, tag: str, tension: float, args, cache: Path, shared: dict) -
         a = scenario_a(scenario)
         design_name = name if name in PRIORS else name.rsplit("_", 1)[0]
         for n in counts:
-            err = identify_trials(data, n, "fgls")[0] / data["k_true"] - 1
+            err = identify_trials(data, n, args.method)[0] / data["k_true"] - 1
             pred = design.evaluate(a[:n], data["k_true"]).minimax_value
             cells[(design_name, n)] = {"err": err, "pred": pred, "bound": extra.get("bound"),
                                        "plan": plan, "extra": extra}  # fmt: skip
     return cells
 
 
-def shared_sets(base, trials: int, cache: Path) -> dict:
+def shared_sets(base, trials: int, cache: Path, method: str = "fgls") -> dict:
     """kappa (the paper's tests) and random clear tests at 200 N: the same in every panel."""
     cells = {}
     for name, fn in (("kappa", lambda: base), ("random", lambda: random_scenario(base, 20, 7))):
@@ -184,7 +184,7 @@ def shared_sets(base, trials: int, cache: Path) -> dict:
             np.save(a_path, scenario_a(scenario))
         a = np.load(a_path)
         for n in COUNTS:
-            err = identify_trials(data, n, "fgls")[0] / data["k_true"] - 1
+            err = identify_trials(data, n, method)[0] / data["k_true"] - 1
             pred = design.evaluate(a[:n], data["k_true"]).minimax_value
             cells[(name, n)] = {"err": err, "pred": pred, "bound": None}
     return cells
@@ -304,12 +304,15 @@ def main() -> None:
                         help="directory for the designs and the measured trials (default %(default)s)")  # fmt: skip
     parser.add_argument("--figure", help="write the comparison figure here (PNG)")
     parser.add_argument("--table", action="store_true", help="print the 20-test minimax design of each panel")
+    parser.add_argument("--method", default="fgls", choices=("fgls", "gls_floor"),
+                        help="estimator of every set's trials (the sequential loop itself always uses "
+                             "fgls); gls_floor weights with the repeat scans' noise floor (default %(default)s)")  # fmt: skip
     args = parser.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     base = vt.load_scenario(PAPER)
     t0 = time.perf_counter()
-    shared = shared_sets(base, args.trials, cache)
+    shared = shared_sets(base, args.trials, cache, args.method)
     rows = []
     for item in args.panels.split(","):
         tension = base.lab.max_tension[0] if item == "limit" else float(item)
@@ -319,7 +322,7 @@ def main() -> None:
         if args.table:
             print(f"\n20-test minimax design, tensions up to {tension:g} N:\n"
                   + controller_table(cells[("minimax", 20)]["plan"], base.robot))  # fmt: skip
-    (cache / f"summary_trials{args.trials}.json").write_text(json.dumps(rows, indent=1))
+    (cache / f"summary_trials{args.trials}_{args.method}.json").write_text(json.dumps(rows, indent=1))
     if args.figure:
         figure(rows, Path(args.figure))
         print(f"figure: {args.figure}")
