@@ -209,3 +209,41 @@ def test_the_newton_inverse_is_numpys_and_a_singular_tangent_is_named():
     tangent[:, 3] = tangent[3, :] = 0.0
     with pytest.raises(ConvergenceError, match="tangent stiffness is singular"):
         statics._inverse(tangent)
+
+
+def test_newton_replaces_a_singular_or_rough_estimate_by_the_exact_tangent():
+    """A linear spring system ``r(q) = -K (q - q*)`` with a dense K: the closed form ``q*`` is the
+    reference. A singular estimate (a degree of freedom the joint springs do not hold) is
+    replaced by the exact tangent at once; a rough one (K's diagonal) is a chord method that
+    converges without it."""
+    from vtestbed.world import statics
+
+    rng = np.random.default_rng(5)
+    springs = np.sqrt([4e6, 3e6, 2e6, 6e4, 3e4, 2e4])
+    mix = rng.normal(size=(6, 6))
+    # springs plus a dense part 4e-3 of them (||diag(K)^-1 K - I||), as gravity is on the KR60
+    stiffness = np.diag(springs**2) + 1e-4 * springs[:, None] * (mix @ mix.T) * springs
+    target = rng.normal(scale=1e-3, size=6)
+    calls = []
+
+    def residual(q):
+        return -stiffness @ (q - target)
+
+    def tangent(q):
+        calls.append(q)
+        return stiffness.copy()
+
+    def tolerance(q, k):
+        return statics.roundoff_tolerance(k, q, np.abs(stiffness) @ (np.abs(q) + 1e-3))
+
+    singular = np.diag(stiffness).copy()
+    singular[2] = 0.0
+    eq = statics.newton(residual, tangent, tolerance, np.zeros(6), estimate=lambda q: np.diag(singular))
+    np.testing.assert_allclose(eq.qpos, target, rtol=0, atol=1e-14)
+    assert eq.tangent_calls == len(calls) == 1 and eq.iterations == 1  # exact tangent: one step
+    calls.clear()
+    eq = statics.newton(
+        residual, tangent, tolerance, np.zeros(6), estimate=lambda q: np.diag(np.diag(stiffness))
+    )
+    np.testing.assert_allclose(eq.qpos, target, rtol=0, atol=1e-14)
+    assert eq.tangent_calls == len(calls) == 0 and eq.iterations > 1  # chord steps only

@@ -156,12 +156,15 @@ def roundoff_tolerance(tangent: np.ndarray, qpos: np.ndarray, force_scale: np.nd
     return FLOOR_FACTOR * EPS * (np.abs(tangent) @ (np.abs(qpos) + 1.0) + force_scale)
 
 
-def _inverse(tangent: np.ndarray) -> np.ndarray:
+def _inverse(tangent: np.ndarray, singular_ok: bool = False) -> np.ndarray | None:
     # An explicit inverse: each Newton step is then one matrix-vector product. LAPACK's LU
     # directly (1.7 us for 6x6 here) rather than np.linalg.inv (4.3 us, mostly its Python checks).
+    # ``singular_ok``: None for a singular matrix instead of the error.
     lu, pivots, info = dgetrf(tangent)
     if info == 0:
         inverse, info = dgetri(lu, pivots)
+    if info != 0 and singular_ok:
+        return None
     if info != 0:
         raise ConvergenceError(
             "static equilibrium: the tangent stiffness is singular (a degree of freedom without "
@@ -209,7 +212,8 @@ def newton(
         treated as stale: a step it fails, or one that reduces the residual by less than
         :data:`REFRESH_RATIO`, brings in ``tangent``. Newton with it is a chord method: each step
         shrinks the residual by about ``||K_est^-1 K - I||`` (2e-3 on the KR60, see
-        :mod:`vtestbed.world.rig`), which beats the cost of one exact tangent.
+        :func:`spring_tangent`), which beats the cost of one exact tangent. A singular estimate
+        is replaced by ``tangent``.
 
     Raises
     ------
@@ -223,13 +227,16 @@ def newton(
     q = np.array(q0, dtype=float)
     r = residual(q)
     calls, tangents = 1, 0
-    if tangent0 is None and estimate is not None:
-        k, fresh = estimate(q), False
-    elif tangent0 is None:
-        k, tangents, fresh = tangent(q), 1, True
-    else:
+    h = None
+    if tangent0 is not None:
         k, fresh = tangent0, tangent0_exact
-    h = _inverse(k) if tangent0 is None or inverse0 is None else inverse0
+        h = _inverse(k) if inverse0 is None else inverse0
+    elif estimate is not None:
+        k, fresh = estimate(q), False
+        h = _inverse(k, singular_ok=True)  # singular (a dof held by gravity alone): the exact one
+    if h is None:
+        k, tangents, fresh = tangent(q), 1, True
+        h = _inverse(k)
     tol = tolerance(q, k)  # at the current q
     w = r / tol
     merit = math.sqrt(w @ w)
