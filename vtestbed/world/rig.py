@@ -211,8 +211,8 @@ class Rig:
         return k
 
     def _tangent_estimate(self, qpos: np.ndarray) -> np.ndarray:
-        """(nv, nv) the springs' tangent (:func:`statics.spring_tangent`) plus the joint-level
-        effects' [N*m/rad], for a cold solve; reads the tendons the residual call at ``qpos`` left."""
+        """(nv, nv) [N*m/rad] :func:`statics.spring_tangent` plus the joint-level effects' (a cold
+        solve's first tangent); reads the tendons the residual call at ``qpos`` left in ``data``."""
         k = statics.spring_tangent(self.model, self.data, self._spring_tangent)
         if self._joint_effects:
             jq, jd = self._joint_qpos, self._joint_dof
@@ -296,9 +296,9 @@ class Rig:
         q0, (tangent0, inverse0) = self._q_guess, self._tangent_guess or (None, None)
         self._hold_tension(tension)
         try:
-            # From the unloaded equilibrium with its tangent: the held pull only adds its turning
-            # term (T |d2L/dq2|, ~1e-4 of the joint springs), so the stale tangent converges by
-            # ~4 digits a step and saves the most expensive call of the tighten.
+            # From the unloaded equilibrium's tangent (usually the springs' estimate, 2e-3 off;
+            # the held pull adds only T |d2L/dq2|, 1e-4 of the springs): 2-3 digits a step, and
+            # no call of the most expensive part, the exact tangent.
             held = self._equilibrium(q0, max_iterations, None, tangent0, False, inverse0)
             length, wire_j = statics.tendon_at(self.model, self.data, held.qpos, self._tendon)
             ea = self.lab.wire.axial_rigidity
