@@ -202,18 +202,19 @@ class Rig:
         """
         self.tangent_calls += 1
         qpos = np.asarray(qpos, dtype=float)
-        k = statics.mujoco_tangent(self.model, self.data, qpos)
-        if self._joint_effects:
-            jq, jd = self._joint_qpos, self._joint_dof
-            k[np.ix_(jd, jd)] -= statics.central_difference(self._effect_forces, qpos[jq])
+        k = self._with_effects_tangent(statics.mujoco_tangent(self.model, self.data, qpos), qpos)
         if self._external is not None:
             k -= statics.central_difference(self._applied_force_at, qpos)
         return k
 
     def _tangent_estimate(self, qpos: np.ndarray) -> np.ndarray:
-        """(nv, nv) [N*m/rad] :func:`statics.spring_tangent` plus the joint-level effects' (a cold
-        solve's first tangent); reads the tendons the residual call at ``qpos`` left in ``data``."""
+        """A cold solve's first tangent [N*m/rad]: :func:`statics.spring_tangent` (the tendons the
+        residual call at ``qpos`` left in ``data``) plus the joint-level effects'."""
         k = statics.spring_tangent(self.model, self.data, self._spring_tangent)
+        return self._with_effects_tangent(k, qpos)
+
+    def _with_effects_tangent(self, k: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+        """``k`` plus the joint-level effects' tangent (central differences) [N*m/rad], in place."""
         if self._joint_effects:
             jq, jd = self._joint_qpos, self._joint_dof
             k[np.ix_(jd, jd)] -= statics.central_difference(self._effect_forces, qpos[jq])

@@ -128,9 +128,7 @@ def spring_tangent(model: mujoco.MjModel, data: mujoco.MjData, joint_springs: np
     for t in range(model.ntendon):
         length = data.ten_length[t]
         if stiffness[t] > 0.0 and not springs[t, 0] <= length <= springs[t, 1]:  # taut
-            jac = np.zeros(model.nv)  # MuJoCo stores tendon Jacobians sparse
-            adr, nnz = model.ten_J_rowadr[t], model.ten_J_rownnz[t]
-            jac[model.ten_J_colind[adr : adr + nnz]] = data.ten_J[adr : adr + nnz]
+            jac = tendon_jacobian(model, data, t)
             k += stiffness[t] * (jac[:, None] * jac)
     return k
 
@@ -307,10 +305,15 @@ def tendon_at(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, tend
     mujoco.mj_kinematics(model, data)
     mujoco.mj_comPos(model, data)
     mujoco.mj_tendon(model, data)
+    return float(data.ten_length[tendon]), tendon_jacobian(model, data, tendon)
+
+
+def tendon_jacobian(model: mujoco.MjModel, data: mujoco.MjData, tendon: int) -> np.ndarray:
+    """(nv,) dense Jacobian dL/dq [m/rad] of ``tendon`` from ``data`` (after ``mj_tendon``)."""
     jac = np.zeros(model.nv)  # MuJoCo stores tendon Jacobians sparse
     adr, nnz = model.ten_J_rowadr[tendon], model.ten_J_rownnz[tendon]
     jac[model.ten_J_colind[adr : adr + nnz]] = data.ten_J[adr : adr + nnz]
-    return float(data.ten_length[tendon]), jac
+    return jac
 
 
 class SitePoses:
