@@ -68,7 +68,9 @@ from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames 
 from vtestbed.errors import VtestbedError  # noqa: E402
 from vtestbed.researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import (  # noqa: E402
-    CONFUSABLE_BIC,
+    CONFUSABLE_MARGIN,
+    DEFAULT_RANK,
+    RANK_LABELS,
     Whitener,
     fit_model,
     identifiable,
@@ -90,6 +92,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # --scenario sets it for the spawned workers too (they re-import this module and read the variable)
 SCENARIO = Path(os.environ.get("VTESTBED_BENCH_SCENARIO", ROOT / "scenarios" / "kr60_paper.toml"))
 ALPHA = 0.01
+RANK = os.environ.get("VTESTBED_BENCH_RANK", DEFAULT_RANK)  # --rank, for the spawned workers too
 REPEATS = 3  # repeat scans per test, as scenarios/kr60_hidden_link.toml
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
 REF_SEED, REF_REPEATS = 977, 10  # the reference floor (only for choosing f_lim)
@@ -213,7 +216,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     ctx, ctx_val = model_context(ident, prepared, statics), model_context(valid, prepared, statics)
     white = Whitener(floor)
     base = fit_model(ctx, white, [])
-    chosen, steps, final = name_effects(ctx, white, pool, alpha=ALPHA)
+    chosen, steps, final = name_effects(ctx, white, pool, alpha=ALPHA, rank_by=RANK)
     before = validation_gap(ctx_val, white, base, [])["ratio_to_floor"]
     after = validation_gap(ctx_val, white, final, chosen)["ratio_to_floor"]
     t3 = time.perf_counter()
@@ -226,12 +229,13 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
         "dof": base.dof,
         "p_detect": base.p_value,
         "round1": [
-            {k: r[k] for k in ("label", "name", "lr", "df", "p_value", "bic", "significant")}
+            {k: r[k] for k in ("label", "name", "lr", "df", "p_value", "bic", "press", "significant")}
             for r in steps[0].tests
         ],  # fmt: skip
         "val_before": before,
         "val_after": after,
         "runner_up": steps[0].runner_up,
+        "delta": steps[0].delta,
         "delta_bic": steps[0].delta_bic,
         "fit_before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
         "fit_after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
@@ -497,7 +501,7 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
                     own["lr"],
                     own["df"],
                     own["p_value"],
-                    own["bic"] - win["bic"],
+                    own[RANK] - win[RANK],
                     own["significant"],
                 )
             )
@@ -507,21 +511,22 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         v = np.array(v)
         print(f"- {key}: {win} named first in {len(v)}: its LR {np.median(v[:, 0]):.1f} (df {v[0, 1]:.0f}); "
               f"{want} LR {np.median(v[:, 2]):.1f} (df {v[0, 3]:.0f}, p {fmt_p(np.median(v[:, 4]))}, "
-              f"significant in {int(np.sum(v[:, 6]))}), BIC {np.median(v[:, 5]):+.1f} "
+              f"significant in {int(np.sum(v[:, 6]))}), {RANK_LABELS[RANK]} {np.median(v[:, 5]):+.1f} "
               "against the winner")  # fmt: skip
 
-    print(f"\n## Runner-up (first round): the best other significant candidate, BIC margin over the chosen "
-          f"(< {CONFUSABLE_BIC:g}: reported confusable)\n")  # fmt: skip
+    print(f"\n## Runner-up (first round): the best other significant candidate, {RANK_LABELS[RANK]} margin over "
+          f"the chosen (< {CONFUSABLE_MARGIN:g}: reported confusable)\n")  # fmt: skip
     for name, size, _ in worlds:
         rs = [r for r in results[world_key(name, size)] if "error" not in r and r["named"]]
         if not rs:
             continue
         ups: dict = {}
         for r in rs:
-            ups.setdefault(r["runner_up"] or "none", []).append(r["delta_bic"])
-        conf = sum(r["delta_bic"] is not None and r["delta_bic"] < CONFUSABLE_BIC for r in rs)
+            ups.setdefault(r["runner_up"] or "none", []).append(r["delta"])
+        conf = sum(r["delta"] is not None and r["delta"] < CONFUSABLE_MARGIN for r in rs)
         parts = [
-            f"{k} {len(v)}" + (f" (median {np.median(v):.1f})" if k != "none" else "")
+            f"{k} {len(v)}"
+            + (f" (median {np.median([x for x in v if x is not None]):.1f})" if k != "none" else "")
             for k, v in sorted(ups.items(), key=lambda x: -len(x[1]))
         ]
         print(
@@ -599,7 +604,7 @@ def clopper_pearson(k: int, n: int) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------- main
 def main() -> None:
-    global SCENARIO
+    global SCENARIO, RANK
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=50, help="trials per world")
     parser.add_argument("--workers", type=int, default=2)
@@ -617,7 +622,11 @@ def main() -> None:
     parser.add_argument(
         "--scenario", type=Path, default=SCENARIO, help="the experiment (default: the paper's)"
     )
+    parser.add_argument("--rank", choices=tuple(RANK_LABELS), default=RANK,
+                        help="how diagnose ranks the significant candidates (default %(default)s)")  # fmt: skip
     args = parser.parse_args()
+    RANK = args.rank
+    os.environ["VTESTBED_BENCH_RANK"] = RANK
     SCENARIO = args.scenario.resolve()
     os.environ["VTESTBED_BENCH_SCENARIO"] = str(SCENARIO)
     names = [n.strip() for n in args.effects.split(",") if n.strip()]

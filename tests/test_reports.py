@@ -124,10 +124,11 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
     assert {r[0] for r in cands} == set(by_label)
     for row in cands:
         assert float(row[1]) == pytest.approx(by_label[row[0]]["lr"], abs=0.005 + 1e-9)
-        assert float(row[4]) == pytest.approx(by_label[row[0]]["bic"], abs=0.005 + 1e-9)
+        assert float(row[4]) == pytest.approx(by_label[row[0]]["press"], abs=0.005 + 1e-9)
+        assert float(row[5]) == pytest.approx(by_label[row[0]]["bic"], abs=0.005 + 1e-9)
         overlap = by_label[row[0]]["overlap"]  # the chosen term's own row has none
-        assert row[6] == "-" if overlap is None else float(row[6]) == pytest.approx(overlap, abs=0.005 + 1e-9)
-    assert sum(row[6] == "-" for row in cands) == 1
+        assert row[7] == "-" if overlap is None else float(row[7]) == pytest.approx(overlap, abs=0.005 + 1e-9)
+    assert sum(row[7] == "-" for row in cands) == 1
     k = t.tables["stiffness-before-after"][1:]
     for row, k1 in zip(k, report["model"]["stiffness_Nm_per_rad"]):
         close(row[3], k1 * 1e3, 5)

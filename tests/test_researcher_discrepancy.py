@@ -21,6 +21,7 @@ from vtestbed.experiment import dataset_setup, simulate
 from vtestbed.researcher.candidates import ModelContext, candidates
 from vtestbed.researcher.diagnose import Whitener, fit_model, name_effects
 from vtestbed.researcher.discrepancy import diagnose
+from vtestbed.researcher.identify import stack
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.measure import TestMeasurement as Measurement
 from vtestbed.researcher.measure import wrench_at_block
@@ -119,6 +120,30 @@ def test_detection_and_naming_are_calibrated_on_a_clean_world(paper):
     assert alarms <= 6  # binomial(40, 0.05): P(X > 6) < 0.01
 
 
+def test_leave_one_test_out_error_matches_refitting_without_each_test(paper):
+    """``ModelFit.press``, from the fit's hat matrix, against 12 refits that each leave one test
+    out and predict it (a linear term: the closed form is exact)."""
+    effect = JointCoupling(joints=(5, 6), stiffness_Nm_per_rad=2000.0)
+    setup, kin, clean = world_measurements(paper, (effect,), gravity=False, n=12)
+    rng = np.random.default_rng(3)
+    ms = [Measurement(m.test_id, m.group, m.q, m.wrench, m.displacement + rng.normal(0, SIGMA), m.jacobian,
+                      m.frame_unloaded, m.frame_loaded) for m in clean]  # fmt: skip
+    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=100, n_tests=12))
+    (term,) = [c for c in candidates(kin) if c.label == "joint_coupling(5,6)"]
+    for terms in ([], [term]):
+        fit = fit_model(ModelContext(ms, setup, kin), white, terms)
+        refit_error = 0.0
+        for t, m in enumerate(ms):
+            held_out = fit_model(ModelContext(ms[:t] + ms[t + 1 :], setup, kin), white, terms)
+            one = ModelContext([m], setup, kin)
+            x_mat = np.hstack(
+                [stack([m.jacobian], [m.wrench]), *(c.columns(one, held_out.compliance) for c in terms)]
+            )
+            refit_error += float(np.sum(white(m.displacement - x_mat @ held_out.x) ** 2))
+        assert fit.press == pytest.approx(refit_error, rel=1e-9)
+        assert fit.press > fit.chi2  # a held-out test is predicted worse than it is fitted
+
+
 def test_exact_statics_remove_the_clean_worlds_model_bias(truth):
     """Noise-free, nothing hidden, gravity on (kr60_ideal's tests): the paper's model is biased by
     gravity's geometric stiffness and the load-dependent Jacobian; the exact statics are not."""
@@ -151,7 +176,11 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert report["detect"]["model_rejected"] and report["detect"]["p_value"] < 1e-10
     assert report["named"][0] == "link_compliance(link 2)"
     first = report["rounds"][0]  # the separation from the runner-up is reported, and here it is clear
-    assert first["runner_up"] is not None and first["delta_bic"] > 10 and report["confusable"] == []
+    assert first["runner_up"] is not None and first["delta"] > 10 and report["confusable"] == []
+    assert report["rank_by"] == "press" and first["delta"] == pytest.approx(
+        next(t["press"] for t in first["tests"] if t["label"] == first["runner_up"])
+        - next(t["press"] for t in first["tests"] if t["label"] == first["chosen"])
+    )
     before = np.array(report["baseline"]["stiffness_Nm_per_rad"])
     after = np.array(report["model"]["stiffness_Nm_per_rad"])
     assert abs(before[0] / truth.stiffness[0] - 1) > 0.2  # joint 1 was 30 % off with the paper's model
@@ -196,6 +225,9 @@ def test_bad_inputs_are_named(tmp_path, capsys):
     with pytest.raises(UnknownNameError, match="unknown candidate 'wobble'; valid names: base_compliance"):
         candidates(ArmKinematics(scenario.robot), ("wobble",))
     assert cli.main(["diagnose", str(tmp_path / "d"), "--alpha", "2"]) == 2
+    capsys.readouterr()
+    assert cli.main(["diagnose", str(tmp_path / "d"), "--rank", "aic"]) == 2
+    assert "unknown ranking criterion 'aic'; valid names: bic, press" in capsys.readouterr().err
 
 
 def test_too_few_tests_for_a_candidate_and_too_few_repeat_samples_are_named(tmp_path, capsys):

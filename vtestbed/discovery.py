@@ -42,7 +42,7 @@ from .errors import DatasetError, OutOfRangeError, VtestbedError
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
-from .researcher.diagnose import DEFAULT_ALPHA, Whitener, require_floor
+from .researcher.diagnose import DEFAULT_ALPHA, Whitener, confusable_margin, require_floor
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
 from .researcher.measure import load_measurements
@@ -232,6 +232,7 @@ def discover(
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
     rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose")
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
+              "rank_by": rep0.get("rank_by", "bic"),
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
               "rivals": None, "proposal": None, "named_after": None,
               "validation_gap_before": validation_summary(rep0), "validation_gap_after": None, "rounds": []}  # fmt: skip
@@ -337,7 +338,7 @@ def markdown(result: dict) -> str:
     lines = [f"# discover: {result['scenario']} (seed {result['seed']}, alpha {result['alpha']:g})", "",
              f"**Before**: named {names(result['named_before'])}."]  # fmt: skip
     for c in result["confusable_before"]:
-        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC {c['delta_bic']:.1f} apart)")
+        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` ({confusable_margin(result, c)})")
     if result["rivals"] is None:
         return "\n".join([*lines, "", result.get("note", ""), ""])
     p, r = result["proposal"], result["rivals"]
@@ -368,5 +369,5 @@ def markdown(result: dict) -> str:
         lines.append(f"Validation prediction error over the noise floor: {vb['baseline']:.2f} with the paper's "
                      f"model, {vb['named']:.2f} with the terms named before, {va['named']:.2f} after.")  # fmt: skip
     for c in result["confusable_after"]:
-        lines.append(f"- still `{c['chosen']}` or `{c['runner_up']}` (BIC {c['delta_bic']:.1f} apart)")
+        lines.append(f"- still `{c['chosen']}` or `{c['runner_up']}` ({confusable_margin(result, c)})")
     return "\n".join(lines) + "\n"

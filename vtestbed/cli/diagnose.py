@@ -16,7 +16,8 @@ def _cmd_diagnose(args) -> int:
     names = None if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
-    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics)
+    rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
+    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics, **rank)
     html = None
     if args.out:
         from ..reports import write_report
@@ -53,5 +54,7 @@ def register(sub) -> None:
     )
     p.add_argument("--statics", default="exact", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
+    p.add_argument("--rank", help="how to rank the significant candidates: press (their leave-one-test-out "
+                   "prediction error, the default) or bic")  # fmt: skip
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_diagnose)

@@ -1,15 +1,16 @@
 """Which models a diagnosis leaves undecided: the rivals a discrimination design must separate.
 
 Read from ``diagnose``'s report (its rounds: each round's baseline terms, the candidates' tests
-with Bonferroni-adjustable p-values and BIC, the chosen term and its BIC lead), never from the
-world. :func:`rivals_from_report` is the default rule (confusable or marginal evidence);
+with Bonferroni-adjustable p-values and scores, the chosen term and its lead in the report's
+ranking criterion, ``rank_by``: reports before 2026-11-26 ranked by BIC), never from the world.
+:func:`rivals_from_report` is the default rule (confusable or marginal evidence);
 :func:`confirming_rivals` the rivals of a round run after a decisive diagnosis
 (``discover --always``). Labels are candidate labels or :data:`BASELINE`.
 """
 
 from __future__ import annotations
 
-from ..researcher.diagnose import CONFUSABLE_BIC, STAND_IN_R2
+from ..researcher.diagnose import CONFUSABLE_MARGIN, STAND_IN_R2
 
 BASELINE = "baseline"  # the label of the model without a further term
 MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
@@ -23,19 +24,20 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     the round's level (``diagnose.step_level``: ``alpha`` over the candidates in play, shared by
     the rounds after a first name). The rounds are read in order:
 
-    * *confusable*: the runner-up is within :data:`CONFUSABLE_BIC` of the chosen term; the rivals
+    * *confusable*: the runner-up is within :data:`CONFUSABLE_MARGIN` of the chosen term; the rivals
       are the plausible candidates that close to it (the chosen one first);
     * *marginal*, a weak name: the chosen term's p-value is above its round's level over
       :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
-      within :data:`CONFUSABLE_BIC` of the chosen one;
+      within :data:`CONFUSABLE_MARGIN` of the chosen one;
     * *marginal*, nothing named: the round's baseline and the plausible candidates within
-      :data:`CONFUSABLE_BIC` of the best of them.
+      :data:`CONFUSABLE_MARGIN` of the best of them.
 
     A round whose chosen term the stepwise search later dropped (``report["dropped"]``: it stood in
     for terms named after it) is skipped, and dropped terms leave every round's baseline. At most
     ``MAX_RIVALS`` models. Returns ``{"reason", "base_terms", "rivals", "round"}``.
     """
     alpha = report["alpha"] if alpha is None else alpha
+    score = _scorer(report)
     dropped = set(report.get("dropped") or ())
     for k, rnd in enumerate(report["rounds"]):
         if rnd["chosen"] in dropped:
@@ -45,21 +47,34 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         level = (rnd.get("level") or report["alpha"] / len(rnd["tests"])) * (alpha / report["alpha"])
         plausible = sorted(
             (t for t in rnd["tests"] if t["df"] > 0 and t["p_value"] < MARGINAL_FACTOR * level),
-            key=lambda t: t["bic"],
+            key=score,
         )
         chosen = next((t for t in rnd["tests"] if t["label"] == rnd["chosen"]), None)
         lead = chosen or (plausible[0] if plausible else None)
         if lead is None:
             return None
         close = [lead["label"]] + [
-            t["label"] for t in plausible if t is not lead and t["bic"] - lead["bic"] < CONFUSABLE_BIC
+            t["label"] for t in plausible if t is not lead and score(t) - score(lead) < CONFUSABLE_MARGIN
         ]
         base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
-        if chosen and rnd["delta_bic"] is not None and rnd["delta_bic"] < CONFUSABLE_BIC:
+        delta = rnd.get("delta", rnd.get("delta_bic"))  # reports before 2026-11-26: the BIC lead
+        if chosen and delta is not None and delta < CONFUSABLE_MARGIN:
             return {"reason": "confusable", "rivals": close[:MAX_RIVALS], **base}
         if chosen is None or chosen["p_value"] > level / MARGINAL_FACTOR:
             return {"reason": "marginal", "rivals": [BASELINE, *close][:MAX_RIVALS], **base}
     return None
+
+
+def _scorer(report: dict):
+    """A test row's score in the report's ranking criterion (lower is better; a leave-one-test-out
+    error the strict JSON wrote as null, because some test could not be left out, ranks last)."""
+    rank_by = report.get("rank_by", "bic")
+
+    def score(test: dict) -> float:
+        value = test.get(rank_by)
+        return float("inf") if value is None else float(value)
+
+    return score
 
 
 def confirming_rivals(report: dict) -> dict:
@@ -68,16 +83,16 @@ def confirming_rivals(report: dict) -> dict:
     The first round decides what is named first, so its closest models are the ones to test.
     With a name (reason "confirm"), the chosen term against the candidates that could stand in
     for it (those that reproduce at least :data:`STAND_IN_R2` of its fitted pattern, the round's
-    ``overlap``, largest first), then the next candidates by BIC: a wrong name clear of the
-    confusable band is put to the test against the effect it may stand for, even when that
-    effect's parameter count ranks it low by BIC (a 6-parameter ``block_offset`` behind a
-    ``joint_coupling``). Without a name (reason "screen"), the baseline against the strongest
-    candidates by BIC (an effect just below the level). Terms the stepwise search dropped are
+    ``overlap``, largest first), then the next candidates by the report's ranking: a wrong name
+    clear of the confusable band is put to the test against the effect it may stand for, even
+    when that effect ranks low (a 6-parameter ``block_offset`` behind a ``joint_coupling``, by
+    BIC). Without a name (reason "screen"), the baseline against the best-ranked candidates (an
+    effect just below the level). Terms the stepwise search dropped are
     left out. At most :data:`MAX_RIVALS` models.
     """
     dropped = set(report.get("dropped") or ())
     rnd = report["rounds"][0]
-    ranked = [t["label"] for t in sorted(rnd["tests"], key=lambda t: t["bic"]) if t["df"] > 0]
+    ranked = [t["label"] for t in sorted(rnd["tests"], key=_scorer(report)) if t["df"] > 0]
     chosen = rnd["chosen"] if rnd["chosen"] not in dropped else None
     lead = chosen or BASELINE
     if chosen:

@@ -5,6 +5,7 @@ Stiffness in N*mm/rad, the noise floor in um and urad, residuals as ratios to th
 
 from __future__ import annotations
 
+from ..researcher.diagnose import confusable_margin, rank_label
 from ..researcher.discrepancy import COMPONENTS, stand_ins
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
@@ -42,17 +43,19 @@ def detection(folder: ResultFolder) -> Section:
 
 
 def candidates(folder: ResultFolder) -> Section:
-    """Every round's candidate tests: likelihood ratio, p-value, BIC, significance."""
+    """Every round's candidate tests: likelihood ratio, p-value, held-out error, BIC, significance."""
     blocks = []
     for i, rnd in enumerate(folder.data["rounds"], start=1):
         base = ", ".join(rnd["base"]) or "the paper's model"
-        rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t["bic"], ".2f"),
+        rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t.get("press"), ".2f"),
+                 Num(t["bic"], ".2f"),
                  "yes" if t["significant"] else "no",
                  "-" if t.get("overlap") is None else Num(t["overlap"], ".2f")] for t in rnd["tests"]]  # fmt: skip
-        caption = f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
+        caption = (f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
+                   f" (ranked by {rank_label(folder.data)})")  # fmt: skip
         if rnd.get("dropped"):  # the stepwise search's re-test after this round's addition
             caption += f"; dropped: {', '.join(d['label'] for d in rnd['dropped'])}"
-        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "BIC", "significant",
+        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "held-out error", "BIC", "significant",
                              "share of the chosen term's pattern"], rows,
                             id=f"candidates-round-{i}", caption=caption))  # fmt: skip
     return Section("candidates", "Candidate terms", blocks)
@@ -65,8 +68,7 @@ def named(folder: ResultFolder) -> Section:
     text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
     text += [f"{label} (dropped): {note}" for label, note in r.get("dropped", {}).items()]  # stepwise search
     text += [
-        f"{c['chosen']} could also be {c['runner_up']} (BIC only {c['delta_bic']:.1f} apart)"
-        for c in r["confusable"]
+        f"{c['chosen']} could also be {c['runner_up']} ({confusable_margin(r, c)})" for c in r["confusable"]
     ]
     text += [
         f"{chosen}'s pattern is also reproduced by "

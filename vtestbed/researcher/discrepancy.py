@@ -15,19 +15,24 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from .candidates import ModelContext, candidates
 from .diagnose import (
-    CONFUSABLE_BIC,
+    CONFUSABLE_MARGIN,
     DEFAULT_ALPHA,
+    DEFAULT_RANK,
+    RANK_CRITERIA,
     STAND_IN_R2,
     Whitener,
     absorbed_by,
+    confusable_margin,
     fit_model,
     name_effects,
+    rank_label,
     require_floor,
     require_tests,
     validation_gap,
@@ -38,7 +43,14 @@ from .model_file import baseline_statics, default_candidates, model_file, requir
 from .noise_floor import estimate_noise_floor
 
 
-def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: str = "exact") -> dict:
+def diagnose(
+    root,
+    alpha: float = DEFAULT_ALPHA,
+    names=None,
+    out=None,
+    statics: str = "exact",
+    rank_by: str = DEFAULT_RANK,
+) -> dict:
     """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``).
 
     ``statics="exact"`` (default) takes the paper's model with the clean world's exact statics
@@ -46,8 +58,12 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     the baseline, so that candidates compete only for what every lab does not share;
     ``"paper"`` takes the paper's linear model as it is, and the three clean-world gaps
     (``gravity_stiffness``, ``load_dependent_jacobian``, ``exact_kinematics``) join the
-    candidates. ``names``: the candidate names (default :func:`default_candidates`).
+    candidates. ``names``: the candidate names (default :func:`default_candidates`). ``rank_by``:
+    how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
+    leave-one-test-out prediction error).
     """
+    if rank_by not in RANK_CRITERIA:  # before any work: the dataset's own errors come after
+        raise UnknownNameError("ranking criterion", rank_by, RANK_CRITERIA)
     names = default_candidates(statics) if names is None else tuple(names)
     require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
@@ -64,7 +80,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
     base = fit_model(ctx, white, [])
-    chosen, steps, final = name_effects(ctx, white, pool, alpha)
+    chosen, steps, final = name_effects(ctx, white, pool, alpha, rank_by=rank_by)
     names_chosen = {c.label for c in chosen}
     absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}
     for cand in pool:
@@ -76,6 +92,7 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
     report = {
         "dataset": str(root),
         "alpha": alpha,
+        "rank_by": rank_by,
         "statics": statics,
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples)},
         "detect": {
@@ -90,11 +107,11 @@ def diagnose(root, alpha: float = DEFAULT_ALPHA, names=None, out=None, statics: 
         "absorbed": absorbed,
         "dropped": dropped_notes(steps, names_chosen),
         "confusable": [
-            {"chosen": s.chosen, "runner_up": s.runner_up, "delta_bic": s.delta_bic}
-            for s in steps if s.chosen in names_chosen and s.delta_bic is not None and s.delta_bic < CONFUSABLE_BIC
+            {"chosen": s.chosen, "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic}
+            for s in steps if s.chosen in names_chosen and s.delta is not None and s.delta < CONFUSABLE_MARGIN
         ],
         "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "level": s.level, "chosen": s.chosen,
-                    "runner_up": s.runner_up, "delta_bic": s.delta_bic, "tests": s.tests,
+                    "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic, "tests": s.tests,
                     "dropped": list(s.dropped)}
                    for s in steps],
         "baseline": base.to_dict(),
@@ -214,12 +231,12 @@ def markdown(report: dict, joint_names) -> str:
         "",
         "**Name.** "
         + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
-        + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by BIC).",
+        + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by {rank_label(report)}).",
     ]
     for label, note in {**report["absorbed"], **report.get("dropped", {})}.items():
         lines.append(f"- `{label}`: {note}")
     for c in report["confusable"]:
-        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` (BIC only {c['delta_bic']:.1f} apart): "
+        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` ({confusable_margin(report, c)}): "
                      "more varied tests would separate them")  # fmt: skip
     for chosen, alike in stand_ins(report).items():
         lines.append(f"- `{chosen}`'s pattern is also reproduced by "

@@ -1,0 +1,152 @@
+"""The model fit the discrepancy workflow tests: the paper's model plus candidate terms, by
+generalised least squares against the repeat scans' noise floor (:class:`Whitener`), with its
+chi^2 and its leave-one-test-out prediction error (the cross-validated error the search ranks
+candidates by, :func:`vtestbed.researcher.diagnose.name_effects`).
+
+Units: SI; displacements in the unloaded block frame [m, rad], compliances in rad/(N*m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import chdtrc  # the chi^2 survival function, without scipy.stats' import
+
+from ..errors import OutOfRangeError
+from .candidates import Candidate, ModelContext
+from .identify import stack
+from .noise_floor import NoiseFloor
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """The paper's model plus ``terms``, fitted against the noise floor (SI)."""
+
+    terms: tuple[str, ...]
+    compliance: np.ndarray  # (n,) rad/(N*m)
+    theta: dict  # term label -> {parameter: value}
+    theta_std: dict
+    chi2: float
+    dof: int
+    residuals: np.ndarray  # (T, 6) measured - predicted
+    x: np.ndarray = field(repr=False)
+    compliance_std: np.ndarray = field(default=None, repr=False)  # (n,) rad/(N*m), noise floor as known
+    rank: int = 0  # independent columns of the fitted design: the parameters the data determine
+    press: float = float("nan")  # whitened leave-one-test-out prediction error (:func:`_leave_one_test_out`)
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        return 1.0 / self.compliance
+
+    @property
+    def p_value(self) -> float:
+        return float(chdtrc(self.dof, self.chi2))
+
+    @property
+    def stiffness_std(self) -> np.ndarray:
+        """(n,) N*m/rad, first order: std(c) / c^2."""
+        return self.compliance_std / self.compliance**2
+
+    def to_dict(self) -> dict:
+        return {"terms": list(self.terms), "stiffness_Nm_per_rad": self.stiffness.tolist(),
+                "stiffness_std_Nm_per_rad": self.stiffness_std.tolist(),
+                "chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
+                "parameters": self.theta, "parameters_std": self.theta_std}  # fmt: skip
+
+
+class Whitener:
+    """x -> C^-1 x / sqrt(f) per test, with ``C C^T`` the noise floor's 6x6 covariance.
+
+    The floor is estimated from ``nu`` samples, so a quadratic form in its inverse is inflated by
+    ``f = nu / (nu - 7)`` on average (inverse Wishart, 6 components); dividing it out keeps the
+    chi^2 tests at their nominal level (measured: chi^2 124 +- 17 on 114 degrees of freedom with
+    nu = 75 before, the expected 114 * 75 / 68 = 126).
+    """
+
+    def __init__(self, floor: NoiseFloor):
+        cov = np.asarray(floor.covariance, dtype=float)
+        nu = int(floor.n_samples)
+        if nu <= 7:  # first: too few samples is also why a covariance is singular
+            raise OutOfRangeError(
+                f"the noise floor rests on {nu} repeat-scan samples; at least 8 are needed to test a model "
+                "against it (record more repeat scans: 2 or more per test)"
+            )
+        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+            raise OutOfRangeError(
+                "the noise floor's covariance must be a finite positive definite 6x6 matrix"
+            )
+        self.inflation = nu / (nu - 7)
+        self.inv_chol = np.linalg.inv(np.linalg.cholesky(cov)) / np.sqrt(self.inflation)
+
+    def __call__(self, stacked: np.ndarray) -> np.ndarray:
+        shape = stacked.shape
+        blocks = stacked.reshape(-1, 6, *shape[1:])
+        return np.einsum("ij,tj...->ti...", self.inv_chol, blocks).reshape(shape)
+
+
+def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int = 4) -> ModelFit:
+    """Fit the compliances and the terms' parameters by GLS against the noise floor.
+
+    Bilinear terms, and the clean world's exact statics when ``ctx.statics`` is set (its gap to the
+    paper's model is subtracted from the measurements), are re-evaluated at the updated
+    compliances ``iterations`` times at most.
+    """
+    ms = ctx.measurements
+    a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
+    d = np.concatenate([m.displacement for m in ms])
+    n = a.shape[1]
+    c = _lstsq(white(a), white(d))[0]
+    cols, gap = [], np.zeros_like(d)
+    repeat = any(t.bilinear for t in terms) or ctx.statics is not None
+    for _ in range(iterations if repeat else 1):
+        if ctx.statics is not None:
+            gap = ctx.statics.gap(ms, c)
+        cols = [t.columns(ctx, c) for t in terms]
+        x_mat = np.hstack([a, *cols]) if cols else a
+        x, cov, rank, basis = _lstsq(white(x_mat), white(d - gap))
+        c = x[:n]
+    x_mat = np.hstack([a, *cols]) if cols else a
+    residuals = d - gap - x_mat @ x
+    white_residuals = white(residuals)
+    chi2 = float(np.sum(white_residuals**2))
+    theta, theta_std, k = {}, {}, n
+    std = np.sqrt(np.diag(cov))
+    for term, block in zip(terms, cols):
+        p = block.shape[1]
+        theta[term.label] = dict(zip(term.params, x[k : k + p].tolist()))
+        theta_std[term.label] = dict(zip(term.params, std[k : k + p].tolist()))
+        k += p
+    dof = len(d) - rank
+    labels = tuple(t.label for t in terms)
+    press = _leave_one_test_out(basis, white_residuals)
+    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n], rank, press)
+
+
+def _leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float:
+    """The whitened prediction error of each test from a fit without it, summed (PRESS, per test).
+
+    For a linear fit with orthonormal basis ``U`` of its whitened columns, test ``t``'s
+    leave-one-out residual is ``(I - U_t U_t^T)^-1 e_t`` (``U_t``, ``e_t``: its 6 rows). A test the
+    fit cannot do without (a leverage of 1 in some direction) makes it ``inf``.
+    """
+    u = basis.reshape(-1, 6, basis.shape[1])
+    e = white_residuals.reshape(-1, 6)
+    hat = np.eye(6) - np.einsum("tik,tjk->tij", u, u)
+    if np.linalg.eigvalsh(hat).min() <= 1e-9:
+        return float("inf")
+    return float(np.sum(np.linalg.solve(hat, e[..., None]) ** 2))
+
+
+def _lstsq(xw: np.ndarray, dw: np.ndarray):
+    """Column-scaled least squares; returns the solution, its covariance (whitened units) and the
+    rank, and an orthonormal basis of the kept column space. Directions below 1e-12 of the largest singular value are left out (minimum norm): the
+    likelihood-ratio tests count degrees of freedom by rank, so a term that adds none is never
+    significant (a link 2 bending in plane is joints 2 and 3 plus their coupling)."""
+    norms = np.linalg.norm(xw, axis=0)
+    norms[norms == 0] = 1.0
+    u, s, vt = np.linalg.svd(xw / norms, full_matrices=False)
+    keep = s > s[0] * 1e-12
+    x = (vt[keep].T @ ((u[:, keep].T @ dw) / s[keep])) / norms
+    cov = ((vt[keep].T / s[keep] ** 2) @ vt[keep]) / np.outer(norms, norms)
+    return x, cov, int(keep.sum()), u[:, keep]
