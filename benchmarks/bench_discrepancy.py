@@ -467,7 +467,7 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
               f"| {fmt_p(np.median([r['p_detect'] for r in rs]))} | {vb:.2f} | {va:.2f} | {excess} "
               f"| {fb:.2f} | {fa:.2f} |")  # fmt: skip
     print("\ntheory: the power of the naming test of the effect's own candidate (detection test without a "
-          "candidate) for the noise-free noncentrality, an upper bound that ignores the competition by BIC "
+          "candidate) for the noise-free noncentrality, an upper bound that ignores the competition between candidates "
           "and the estimated floor; clean: the family-wise level. Validation gap: RMS whitened prediction "
           "error of the 5 validation tests over the noise floor, median over the seeds; excess removed = "
           "(before - after) / (before - 1) of the medians.")  # fmt: skip
