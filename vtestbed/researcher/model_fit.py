@@ -128,7 +128,9 @@ def _leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float
 
     For a linear fit with orthonormal basis ``U`` of its whitened columns, test ``t``'s
     leave-one-out residual is ``(I - U_t U_t^T)^-1 e_t`` (``U_t``, ``e_t``: its 6 rows). A test the
-    fit cannot do without (a leverage of 1 in some direction) makes it ``inf``.
+    fit cannot do without (a leverage of 1 in some direction) makes it ``inf``. For bilinear terms
+    and the exact statics it is the error at the fit's last linearisation (the columns and the
+    statics' gap are not re-evaluated without the test).
     """
     u = basis.reshape(-1, 6, basis.shape[1])
     e = white_residuals.reshape(-1, 6)
