@@ -42,7 +42,7 @@ from .errors import DatasetError, OutOfRangeError, VtestbedError
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
-from .researcher.diagnose import DEFAULT_ALPHA, Whitener, confusable_margin, require_floor
+from .researcher.diagnose import DEFAULT_ALPHA, DEFAULT_RANK, Whitener, confusable_margin, require_floor
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
 from .researcher.measure import load_measurements
@@ -173,6 +173,7 @@ def discover(
     progress: bool = False,
     always: bool = False,
     rounds: int = 1,
+    rank_by: str = DEFAULT_RANK,
 ) -> dict:
     """Simulate, diagnose, propose extra tests if undecided, simulate them, diagnose again.
 
@@ -203,6 +204,8 @@ def discover(
         round runs only while the combined dataset's diagnosis is still undecided (confusable or
         marginal; ``always`` applies to the first round only). Round ``k`` writes ``roundK/`` and
         ``proposal.toml`` (round 1) or ``proposalK.toml``.
+    rank_by : str
+        How every diagnosis ranks the significant candidates (:data:`.researcher.diagnose.RANK_CRITERIA`).
 
     Returns
     -------
@@ -230,7 +233,7 @@ def discover(
         raise OutOfRangeError(f"rounds = {rounds!r} is outside the valid range [{lo}, {hi}]")
     out = Path(out)
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
-    rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose")
+    rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose", rank_by=rank_by)
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
               "rank_by": rep0.get("rank_by", "bic"),
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
@@ -251,7 +254,8 @@ def discover(
                 break
         entry, current, dataset, report = _discrimination_round(
             k, scenario, current, dataset, rivals, out, lab,
-            dict(alpha=alpha, extra_tests=extra_tests, criterion=criterion, n_poses=n_poses, tensions=tensions),
+            dict(alpha=alpha, extra_tests=extra_tests, criterion=criterion, n_poses=n_poses, tensions=tensions,
+                 rank_by=rank_by),
             progress,
         )  # fmt: skip
         result["rounds"].append(entry)
@@ -303,7 +307,7 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     combined = load_scenario(folder / "scenario.toml")
     _extend_dataset(dataset, folder / "dataset", combined)
     ds = simulate(combined, folder / "dataset", progress=progress)
-    report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose")
+    report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose", rank_by=options["rank_by"])
     ctx_k, white_k, pool_k = _researcher_view(ds)
     entry |= {"measured_after": measured_separation(ctx_k, white_k, pool_k, rivals), "named": report["named"],
               "confusable": report["confusable"], "validation_gap": validation_summary(report)}  # fmt: skip
