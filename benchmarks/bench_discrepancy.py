@@ -70,6 +70,7 @@ from vtestbed.researcher.candidates import CANDIDATE_NAMES, ModelContext, candid
 from vtestbed.researcher.diagnose import (  # noqa: E402
     CONFUSABLE_MARGIN,
     DEFAULT_RANK,
+    RANK_CRITERIA,
     RANK_LABELS,
     Whitener,
     fit_model,
@@ -622,7 +623,7 @@ def main() -> None:
     parser.add_argument(
         "--scenario", type=Path, default=SCENARIO, help="the experiment (default: the paper's)"
     )
-    parser.add_argument("--rank", choices=tuple(RANK_LABELS), default=RANK,
+    parser.add_argument("--rank", choices=RANK_CRITERIA, default=RANK,
                         help="how diagnose ranks the significant candidates (default %(default)s)")  # fmt: skip
     args = parser.parse_args()
     RANK = args.rank

@@ -235,7 +235,7 @@ def discover(
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
     rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose", rank_by=rank_by)
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
-              "rank_by": rep0.get("rank_by", "bic"),
+              "rank_by": rep0["rank_by"],
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
               "rivals": None, "proposal": None, "named_after": None,
               "validation_gap_before": validation_summary(rep0), "validation_gap_after": None, "rounds": []}  # fmt: skip

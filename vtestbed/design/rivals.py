@@ -10,7 +10,7 @@ ranking criterion, ``rank_by``: reports before 2026-11-26 ranked by BIC), never 
 
 from __future__ import annotations
 
-from ..researcher.diagnose import CONFUSABLE_MARGIN, STAND_IN_R2
+from ..researcher.diagnose import CONFUSABLE_MARGIN, STAND_IN_R2, report_rank
 
 BASELINE = "baseline"  # the label of the model without a further term
 MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
@@ -68,7 +68,7 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
 def _scorer(report: dict):
     """A test row's score in the report's ranking criterion (lower is better; a leave-one-test-out
     error the strict JSON wrote as null, because some test could not be left out, ranks last)."""
-    rank_by = report.get("rank_by", "bic")
+    rank_by = report_rank(report)
 
     def score(test: dict) -> float:
         value = test.get(rank_by)

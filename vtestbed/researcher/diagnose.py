@@ -53,9 +53,21 @@ STAND_IN_R2 = 0.5  # a candidate reproducing this share of a named term's patter
 DEFAULT_ALPHA = 0.01
 
 
+def require_rank(rank_by: str) -> str:
+    """``rank_by`` if it is one of :data:`RANK_CRITERIA`, else the error that lists them."""
+    if rank_by not in RANK_CRITERIA:
+        raise UnknownNameError("ranking criterion", rank_by, RANK_CRITERIA)
+    return rank_by
+
+
+def report_rank(report: dict) -> str:
+    """The criterion ``report`` ranked its candidates by (reports before 2026-11-26 have none: BIC)."""
+    return report.get("rank_by", "bic")
+
+
 def rank_label(report: dict) -> str:
-    """How ``report``'s candidates were ranked, in words (reports before 2026-11-26: BIC)."""
-    return RANK_LABELS[report.get("rank_by", "bic")]
+    """How ``report``'s candidates were ranked, in words."""
+    return RANK_LABELS[report_rank(report)]
 
 
 def confusable_margin(report: dict, entry: dict) -> str:
@@ -238,8 +250,7 @@ def name_effects(
     terms reached twice ends the search (no cycling)."""
     if not 0.0 < alpha < 1.0:
         raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
-    if rank_by not in RANK_CRITERIA:
-        raise UnknownNameError("ranking criterion", rank_by, RANK_CRITERIA)
+    require_rank(rank_by)
     chosen: list[Candidate] = []
     steps: list[Step] = []
     current = fit_model(ctx, white, chosen)

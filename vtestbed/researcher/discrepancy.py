@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UnknownNameError
 from ..files import write_json_atomic, write_text_atomic
 from ..plotting import pyplot, save_figure
 from ..robots import load_robot
@@ -25,7 +24,6 @@ from .diagnose import (
     CONFUSABLE_MARGIN,
     DEFAULT_ALPHA,
     DEFAULT_RANK,
-    RANK_CRITERIA,
     STAND_IN_R2,
     Whitener,
     absorbed_by,
@@ -34,6 +32,7 @@ from .diagnose import (
     name_effects,
     rank_label,
     require_floor,
+    require_rank,
     require_tests,
     validation_gap,
 )
@@ -62,8 +61,7 @@ def diagnose(
     how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
     leave-one-test-out prediction error).
     """
-    if rank_by not in RANK_CRITERIA:  # before any work: the dataset's own errors come after
-        raise UnknownNameError("ranking criterion", rank_by, RANK_CRITERIA)
+    require_rank(rank_by)  # before any work: the dataset's own errors come after
     names = default_candidates(statics) if names is None else tuple(names)
     require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
