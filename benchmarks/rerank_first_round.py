@@ -60,22 +60,31 @@ def main() -> None:
     parser.add_argument("records", nargs="+", help="JSON files written by bench_discrepancy.py --out")
     args = parser.parse_args()
     for path in args.records:
-        with open(path) as f:
-            results = json.load(f)["results"]
-        print(path)
-        print(f"{'world':42s}" + "".join(f"{rule:>9s}" for rule in RULES) + "   trials")
-        total = Counter()
-        for world, trials in results.items():
-            right, n = Counter(), 0
-            for trial in trials:
-                if "error" in trial:
-                    continue
-                n += 1
-                for rule in RULES:
-                    right[rule] += pick(trial["round1"], trial["chi2"], rule) == expected_name(world)
-            total.update(right)
-            print(f"{world:42s}" + "".join(f"{right[rule]:9d}" for rule in RULES) + f"   {n:6d}")
-        print(f"{'total':42s}" + "".join(f"{total[rule]:9d}" for rule in RULES))
+        try:
+            with open(path) as f:
+                lines = tally(json.load(f)["results"])
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            parser.exit(2, f"error: {path}: not a record of bench_discrepancy.py --out (a JSON object "
+                           f"with 'results', each trial with 'chi2' and 'round1' rows): {exc!r}\n")  # fmt: skip
+        print(path, *lines, sep="\n")
+
+
+def tally(results: dict) -> list[str]:
+    """The table's lines: per world, how often each rule's first pick is the hidden effect."""
+    lines = [f"{'world':42s}" + "".join(f"{rule:>9s}" for rule in RULES) + "   trials"]
+    total = Counter()
+    for world, trials in results.items():
+        right, n = Counter(), 0
+        for trial in trials:
+            if "error" in trial:  # a trial that failed is not scored
+                continue
+            n += 1
+            for rule in RULES:
+                right[rule] += pick(trial["round1"], trial["chi2"], rule) == expected_name(world)
+        total.update(right)
+        lines.append(f"{world:42s}" + "".join(f"{right[rule]:9d}" for rule in RULES) + f"   {n:6d}")
+    lines.append(f"{'total':42s}" + "".join(f"{total[rule]:9d}" for rule in RULES))
+    return lines
 
 
 if __name__ == "__main__":
