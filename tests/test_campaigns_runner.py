@@ -77,7 +77,11 @@ def test_interrupted_campaign_resumes_without_loss_or_duplicates(tiny_sweep, tmp
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "vtestbed", "sweep", str(path), "--out", str(out), "--workers", str(workers),
            "--batch-trials", "1", "--no-report", "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # The sweep (and the workers it spawns, which inherit it) runs at the lowest priority, so that
+    # this process's polls are never starved: its 24 trials take about 0.6 s once the workers are
+    # up, and on a busy 2-core machine a starved poller once saw the 4th file only after the end.
+    nice = ["nice", "-n", "19"] if shutil.which("nice") else []  # coreutils' nice execs the command
+    proc = subprocess.Popen(nice + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
     # count the finished batch files, not their rows: reading parquet between polls is slow enough
     # on a loaded machine for the sweep to finish before the signal
