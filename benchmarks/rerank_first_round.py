@@ -6,11 +6,11 @@ script picks the first name again from those rows under each rule and counts, pe
 often it is the hidden effect (nothing, for the clean world and for the balancer at its realistic
 size, which the scans cannot name). No simulation: it reads the JSON only.
 
-Rules (among the significant candidates; chi^2 = the baseline's chi^2 minus the likelihood ratio,
-n = 120 observations of the paper's 20 tests):
+Rules (among the significant candidates; chi^2 = the baseline's chi^2 minus the likelihood ratio):
 
 - ``press``: the lowest leave-one-test-out prediction error (the rule of ``diagnose``);
-- ``bic``: chi^2 + df ln(n); ``aic``: chi^2 + 2 df; ``p``: the smallest p-value;
+- ``bic``: the BIC the record holds (chi^2 + df ln(n)); ``aic``: chi^2 + 2 df; ``p``: the smallest
+  p-value;
 - ``press+M``: the fewest parameters among the candidates within M of the lowest held-out error
   (a one-standard-error rule), ties by held-out error.
 
@@ -22,10 +22,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections import Counter
 
-N_OBSERVATIONS = 120  # 6 components x the paper's 20 tests
 RULES = ("press", "bic", "aic", "p", "press+2", "press+4", "press+6", "press+10")
 
 
@@ -40,7 +38,7 @@ def pick(rows: list[dict], base_chi2: float, rule: str) -> str | None:
         return min(near, key=lambda r: (r["df"], r["press"]))["name"]
     keys = {
         "press": lambda r: r["press"],
-        "bic": lambda r: base_chi2 - r["lr"] + r["df"] * math.log(N_OBSERVATIONS),
+        "bic": lambda r: r["bic"],  # as diagnose computed it
         "aic": lambda r: base_chi2 - r["lr"] + 2 * r["df"],
         "p": lambda r: (r["p_value"], -r["lr"]),
     }
