@@ -77,11 +77,15 @@ def test_interrupted_campaign_resumes_without_loss_or_duplicates(tiny_sweep, tmp
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "vtestbed", "sweep", str(path), "--out", str(out), "--workers", str(workers),
            "--batch-trials", "1", "--no-report", "--quiet"]  # fmt: skip
-    # The sweep (and the workers it spawns, which inherit it) runs at the lowest priority, so that
-    # this process's polls are never starved: its 24 trials take about 0.6 s once the workers are
-    # up, and on a busy 2-core machine a starved poller once saw the 4th file only after the end.
-    nice = ["nice", "-n", "19"] if shutil.which("nice") else []  # coreutils' nice execs the command
-    proc = subprocess.Popen(nice + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # A shell without job control starts background commands with SIGINT ignored, and an ignored
+    # signal stays ignored across exec: a test run launched that way (`... &` in a script) would
+    # start a sweep that cannot be interrupted. A handled signal is reset to the default by exec,
+    # so the sweep gets Ctrl-C as from a terminal whatever this process inherited.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     deadline = time.monotonic() + 120
     # count the finished batch files, not their rows: reading parquet between polls is slow enough
     # on a loaded machine for the sweep to finish before the signal
