@@ -85,7 +85,9 @@ def test_interrupted_campaign_resumes_without_loss_or_duplicates(tiny_sweep, tmp
     try:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     finally:
-        signal.signal(signal.SIGINT, inherited)
+        signal.signal(
+            signal.SIGINT, signal.SIG_DFL if inherited is None else inherited
+        )  # None: set outside Python
     deadline = time.monotonic() + 120
     # count the finished batch files, not their rows: reading parquet between polls is slow enough
     # on a loaded machine for the sweep to finish before the signal
