@@ -24,9 +24,10 @@ import pytest
 
 from vtestbed.design import discriminate as disc
 from vtestbed.discovery import _researcher_view, discover
-from vtestbed.errors import ScenarioError
+from vtestbed.errors import ScenarioError, UnknownNameError
 from vtestbed.experiment import simulate
 from vtestbed.files import read_toml
+from vtestbed.researcher.diagnose import RANK_CRITERIA
 from vtestbed.scenario import load_scenario, parse_scenario
 from vtestbed.scenario_writer import proposal_text, scenario_text, toml_text
 
@@ -240,6 +241,13 @@ def test_cli_discover_refuses_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert code == 2 and message in err and "Traceback" not in err, err
         assert not (tmp_path / "a" / "round0").exists()
+
+
+def test_an_unknown_ranking_is_refused_before_anything_is_simulated(tmp_path):
+    with pytest.raises(UnknownNameError) as exc:
+        discover(load_scenario(_small_scenario(tmp_path)), tmp_path / "out", rank_by="aic")
+    assert "'aic'" in str(exc.value) and all(name in str(exc.value) for name in RANK_CRITERIA)
+    assert not (tmp_path / "out").exists()  # refused before round 0's simulation
 
 
 def test_cli_choices_match_the_library():

@@ -42,7 +42,14 @@ from .errors import DatasetError, OutOfRangeError, VtestbedError
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
-from .researcher.diagnose import DEFAULT_ALPHA, DEFAULT_RANK, Whitener, confusable_margin, require_floor
+from .researcher.diagnose import (
+    DEFAULT_ALPHA,
+    DEFAULT_RANK,
+    Whitener,
+    confusable_margin,
+    require_floor,
+    require_rank,
+)
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
 from .researcher.measure import load_measurements
@@ -231,6 +238,7 @@ def discover(
     lo, hi = ROUNDS_RANGE
     if not (isinstance(rounds, (int, np.integer)) and lo <= rounds <= hi):
         raise OutOfRangeError(f"rounds = {rounds!r} is outside the valid range [{lo}, {hi}]")
+    require_rank(rank_by)  # before the simulation, not in the first diagnosis after it
     out = Path(out)
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
     rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose", rank_by=rank_by)
