@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
      [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--rounds R]
-     [--workers 1]
+     [--workers 1] [--rerun LOG [--reasons marginal]]
      [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
@@ -111,9 +111,26 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
+    ap.add_argument("--rerun", metavar="LOG",
+                    help="an earlier run's printed output: re-run only its seeds whose round was of a --reasons "
+                         "kind, keep its rows for the others, and score them all (a rule that changes only "
+                         "those rounds, at the cost of those seeds)")  # fmt: skip
+    ap.add_argument(
+        "--reasons", default="marginal", help="with --rerun: comma-separated round kinds to re-run"
+    )
     args = ap.parse_args()
     expected = set() if args.expected == "nothing" else set(args.expected.split("+"))  # "a+b": both hidden
     seeds = range(args.first, args.first + args.seeds)
+    kept = {}
+    if args.rerun:
+        try:
+            kept = earlier_rows(args.rerun, seeds)
+        except ValueError as exc:
+            ap.exit(2, f"error: --rerun {args.rerun}: {exc}\n")
+        reasons = set(args.reasons.split(","))
+        # a later round (--rounds > 1) can be of any kind: such seeds are re-run too
+        kept = {seed: row for seed, row in kept.items()
+                if row.get("reason") not in reasons and row.get("rounds_run", 1) <= 1}  # fmt: skip
     world = tuple(name.strip() for name in args.world.split(",") if name.strip())
     task = (
         args.scenario,
@@ -127,11 +144,39 @@ def main() -> None:
     )
     rows = []
     with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(run_seed, task[0], seed, *task[1:]) for seed in seeds]
-        for future in futures:  # in seed order
-            rows.append(future.result())
+        futures = {
+            seed: pool.submit(run_seed, task[0], seed, *task[1:]) for seed in seeds if seed not in kept
+        }
+        for seed in seeds:  # in seed order
+            rows.append(kept[seed] | {"kept": True} if seed in kept else futures[seed].result())
             print(json.dumps(rows[-1], default=float), flush=True)
+    if kept:
+        print(f"\n{len(kept)} rows kept from {args.rerun}, {len(futures)} seeds re-run")
     summarize(rows, expected, args.expected, args.extra_tests)
+
+
+def earlier_rows(path: str, seeds) -> dict:
+    """The rows of an earlier run's output at ``path`` (its JSON lines), by seed; every seed of
+    ``seeds`` must be there (ValueError otherwise: a partial log would silently change the sample)."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError as exc:
+        raise ValueError(f"cannot read it ({exc.strerror})") from None
+    rows = {}
+    for k, line in enumerate(lines, start=1):
+        if line.startswith("{"):
+            try:
+                row = json.loads(line)
+                rows[row["seed"]] = row
+            except (ValueError, KeyError, TypeError):
+                raise ValueError(
+                    f"line {k} is not a row of this benchmark (a JSON object with a seed)"
+                ) from None
+    missing = [seed for seed in seeds if seed not in rows]
+    if missing:
+        raise ValueError(f"no row for seeds {missing[:5]}{' ...' if len(missing) > 5 else ''} "
+                         f"(it has {len(rows)} rows): give the --seeds and --first of that run")  # fmt: skip
+    return rows
 
 
 def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int) -> None:

@@ -176,6 +176,35 @@ def test_rivals_from_report():
     assert disc.rivals_from_report(_report(stood_in))["round"] == 0  # without the drop, round 0 decides
 
 
+def test_marginal_rivals_take_the_leads_stand_ins():
+    # a weak name: after the baseline and the close candidates, those that reproduce at least half
+    # of its pattern, largest share first, however far behind they rank (d: 6 parameters)
+    weak = [_row("a", 1e-3, 100.0, True), _row("b", 0.01, 104.0, False), _row("c", 0.5, 140.0, False),
+            _row("d", 0.5, 150.0, False, 6), _row("e", 0.5, 160.0, False), _row("f", 0.5, 170.0, False),
+            _row("g", 0.9, 90.0, False, 0)]  # fmt: skip
+    for row, share in zip(weak[1:], (0.2, 0.55, 0.96, disc.STAND_IN_R2 - 1e-9, 0.7, 1.0), strict=True):
+        row["overlap"] = share  # g: no parameters, never a rival
+    rnd = {"base": [], "chosen": "a", "runner_up": None, "delta_bic": None, "tests": weak}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a", "b", "d"]
+    rnd["overlap_of"] = "a"  # recorded since the rule: the same
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a", "b", "d"]
+    weak[1]["p_value"] = 0.5  # b no longer plausible: the room goes to the next stand-in, f
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a", "d", "f"]
+    # a stand-in the stepwise search dropped is not a rival
+    assert disc.rivals_from_report(_report([rnd]) | {"dropped": {"d": "..."}})["rivals"] == [
+        disc.BASELINE, "a", "f", "c"]  # fmt: skip
+    # nothing named: the shares count only when they are of the lead (the best plausible candidate)
+    for row in weak:
+        row["significant"] = False
+    weak[0]["p_value"] = 2e-3  # not significant, adjusted 7 * 2e-3 = 0.014 < 10 alpha: marginal, a leads
+    rnd |= {"chosen": None, "overlap_of": "a"}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a", "d", "f"]
+    rnd["overlap_of"] = "c"  # the shares of another candidate's pattern: no stand-ins
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a"]
+    del rnd["overlap_of"]  # an older report: shares only of a chosen term
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a"]
+
+
 def test_confirming_rivals_after_a_decisive_diagnosis():
     # a decisive name: the chosen term against the next candidates by BIC (df 0 rows skipped)
     decisive = [_row("a", 1e-12, 100.0, True), _row("b", 1e-3, 130.0, True), _row("c", 0.5, 120.0, False),

@@ -32,6 +32,13 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     * *marginal*, nothing named: the round's baseline and the plausible candidates within
       :data:`CONFUSABLE_MARGIN` of the best of them.
 
+    A marginal round's rivals then take, while there is room, the candidates that could stand in
+    for its lead (the chosen term, else the best plausible one): those that reproduce at least
+    :data:`STAND_IN_R2` of its fitted pattern (the round's ``overlap``), largest share first. The
+    evidence is weak, so a design that only asks "is the lead there?" can end naming the stand-in
+    it never tested against (a 6-parameter ``block_offset`` reproduces 96 % of a
+    ``scanner_scale``'s pattern, and won after such rounds).
+
     A round whose chosen term the stepwise search later dropped (``report["dropped"]``: it stood in
     for terms named after it) is skipped, and dropped terms leave every round's baseline. At most
     ``MAX_RIVALS`` models. Returns ``{"reason", "base_terms", "rivals", "round"}``.
@@ -61,8 +68,19 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         if chosen and delta is not None and delta < CONFUSABLE_MARGIN:
             return {"reason": "confusable", "rivals": close[:MAX_RIVALS], **base}
         if chosen is None or chosen["p_value"] > level / MARGINAL_FACTOR:
-            return {"reason": "marginal", "rivals": [BASELINE, *close][:MAX_RIVALS], **base}
+            rivals = dict.fromkeys([BASELINE, *close, *_stand_ins(rnd, lead["label"], dropped)])
+            return {"reason": "marginal", "rivals": list(rivals)[:MAX_RIVALS], **base}
     return None
+
+
+def _stand_ins(rnd: dict, lead: str, dropped) -> list[str]:
+    """The candidates of round ``rnd`` that reproduce at least :data:`STAND_IN_R2` of ``lead``'s
+    fitted pattern, largest share first (older reports have no ``overlap_of``: their shares are of
+    the chosen term, and of nothing when nothing was chosen)."""
+    if rnd.get("overlap_of", rnd["chosen"]) != lead:
+        return []
+    alike = [t for t in rnd["tests"] if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2]
+    return [t["label"] for t in sorted(alike, key=lambda t: -t["overlap"]) if t["label"] not in dropped]
 
 
 def _scorer(report: dict):

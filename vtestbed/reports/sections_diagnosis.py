@@ -56,7 +56,7 @@ def candidates(folder: ResultFolder) -> Section:
         if rnd.get("dropped"):  # the stepwise search's re-test after this round's addition
             caption += f"; dropped: {', '.join(d['label'] for d in rnd['dropped'])}"
         blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "held-out error", "BIC", "significant",
-                             "share of the chosen term's pattern"], rows,
+                             f"share of {rnd.get('overlap_of') or 'the chosen term'}'s pattern"], rows,
                             id=f"candidates-round-{i}", caption=caption))  # fmt: skip
     return Section("candidates", "Candidate terms", blocks)
 

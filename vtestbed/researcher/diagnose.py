@@ -190,6 +190,7 @@ class Step:
     dropped: tuple = ()  # dicts: label, lr, df, p_value, level, others (see :func:`_drop_redundant`)
     level: float | None = None  # the tests' significance level (:func:`step_level`)
     delta_bic: float | None = None  # the runner-up's BIC minus the chosen one's (negative: BIC prefers it)
+    overlap_of: str | None = None  # whose pattern the rows' "overlap" share is of: chosen, else best-ranked
 
 
 def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n_pool: int, max_terms: int):
@@ -261,10 +262,10 @@ def name_effects(
         remaining = [c for c in pool if c.label not in {t.label for t in chosen}]
         if not remaining:
             break
-        rows, best = [], None
+        rows, best, fits = [], None, {}
         level = step_level(alpha, len(remaining), len(chosen), max_terms)
         for cand in remaining:
-            fit = fit_model(ctx, white, [*chosen, cand])
+            fit = fits[cand.label] = fit_model(ctx, white, [*chosen, cand])
             df = fit.rank - current.rank
             lr = max(current.chi2 - fit.chi2, 0.0)
             p = float(chdtrc(df, lr)) if df > 0 else 1.0
@@ -278,9 +279,17 @@ def name_effects(
         if best is not None:
             others = [r for r in rows if r["significant"] and r["label"] != best[1].label]
             runner = min(others, key=lambda r: _score(r, rank_by)) if others else None
-            rest = [c for c in remaining if c is not best[1]]
-            overlap = stand_in_overlap(ctx, white, best[2], best[1], chosen, rest)
-            for row in rows:  # the chosen term's own row: None
+        # the overlap column: shares of the chosen term's pattern, or with nothing significant of
+        # the best-ranked candidate's (what a marginal round's design must also test it against)
+        scored = [r for r in rows if r["df"] > 0]
+        lead_row = (
+            best[0] if best is not None else min(scored, key=lambda r: _score(r, rank_by), default=None)
+        )
+        if lead_row is not None:
+            lead = next(c for c in remaining if c.label == lead_row["label"])
+            rest = [c for c in remaining if c is not lead]
+            overlap = stand_in_overlap(ctx, white, fits[lead.label], lead, chosen, rest)
+            for row in rows:  # the lead's own row: None
                 row["overlap"] = overlap.get(row["label"])
         base_terms, base_chi2 = tuple(t.label for t in chosen), current.chi2
         dropped = []
@@ -291,7 +300,8 @@ def name_effects(
             )
         steps.append(
             Step(base_terms, base_chi2, rows, best[1].label if best else None, runner["label"] if runner else None,
-                 _margin(runner, best, rank_by), tuple(dropped), level, _margin(runner, best, "bic"))
+                 _margin(runner, best, rank_by), tuple(dropped), level, _margin(runner, best, "bic"),
+                 lead_row["label"] if lead_row is not None else None)
         )  # fmt: skip
         state = frozenset(t.label for t in chosen)
         if best is None or state in seen:

@@ -110,7 +110,7 @@ def diagnose(
         ],
         "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "level": s.level, "chosen": s.chosen,
                     "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic, "tests": s.tests,
-                    "dropped": list(s.dropped)}
+                    "dropped": list(s.dropped), "overlap_of": s.overlap_of}
                    for s in steps],
         "baseline": base.to_dict(),
         "model": final.to_dict(),
