@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
      [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--rounds R]
-     [--workers 1] [--rerun LOG [--reasons marginal]]
+     [--separation [T]] [--max-extra-tests K] [--workers 1] [--rerun LOG [--reasons marginal]]
      [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
@@ -65,13 +65,24 @@ def scenario_for(path: str, seed: int, factor: float | None, world: tuple[str, .
 
 
 def run_seed(
-    path: str, seed: int, factor, extra_tests: int, always: bool, out: str, keep: bool, world=(), rounds=1
+    path: str,
+    seed: int,
+    factor,
+    extra_tests: int,
+    always: bool,
+    out: str,
+    keep: bool,
+    world=(),
+    rounds=1,
+    separation=None,
+    max_extra_tests=None,
 ) -> dict:
     sc = scenario_for(path, seed, factor, world)
     folder = Path(out) / f"s{seed}"
     t0 = time.perf_counter()
     try:
-        r = discover(sc, folder, extra_tests=extra_tests, always=always, rounds=rounds)
+        r = discover(sc, folder, extra_tests=extra_tests, always=always, rounds=rounds, separation=separation,
+                     max_extra_tests=max_extra_tests)  # fmt: skip
     except VtestbedError as exc:  # one seed's failure is a result (scored as not named), not the run's end
         shutil.rmtree(folder, ignore_errors=True)
         return {"seed": seed, "before": None, "after": None, "proposed": None,
@@ -85,6 +96,7 @@ def run_seed(
            "dbic_after": r.get("measured_after", {}).get("delta_bic"),
            "val_before": r.get("validation_gap_before"), "val_after": r.get("validation_gap_after"),
            "rounds_run": len(r.get("rounds") or ()),
+           "extra_tests": sum(len(k["proposal"]["tests"]) for k in r.get("rounds") or ()),
            "after_round1": (r.get("rounds") or [{}])[0].get("named", r["named_before"]),
            "wall_s": time.perf_counter() - t0}  # fmt: skip
     if not keep:
@@ -108,6 +120,9 @@ def main() -> None:
     ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
     ap.add_argument("--rounds", type=int, default=1,
                     help="discover --rounds: later rounds while the diagnosis stays undecided (default 1)")  # fmt: skip
+    ap.add_argument("--separation", type=float, nargs="?", const=25.0, default=None, metavar="T",
+                    help="discover --separation: size each round until the predicted separation reaches T")  # fmt: skip
+    ap.add_argument("--max-extra-tests", type=int, default=None, help="discover --max-extra-tests")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
@@ -141,6 +156,8 @@ def main() -> None:
         args.keep,
         world,
         args.rounds,
+        args.separation,
+        args.max_extra_tests,
     )
     rows = []
     with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -152,7 +169,12 @@ def main() -> None:
             print(json.dumps(rows[-1], default=float), flush=True)
     if kept:
         print(f"\n{len(kept)} rows kept from {args.rerun}, {len(futures)} seeds re-run")
-    summarize(rows, expected, args.expected, args.extra_tests)
+    size = (
+        f"{args.extra_tests} each"
+        if args.separation is None
+        else (f"{args.extra_tests} or more each, until T >= {args.separation:g}")
+    )
+    summarize(rows, expected, args.expected, size)
 
 
 def earlier_rows(path: str, seeds) -> dict:
@@ -179,7 +201,7 @@ def earlier_rows(path: str, seeds) -> dict:
     return rows
 
 
-def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int) -> None:
+def summarize(rows: list[dict], expected: set[str], label: str, size: str) -> None:
     """Print the scores of ``rows`` (one per seed, as ``run_seed`` returns them): named correctly
     before and after the round with the after-rate's 95 % interval, the right family, and the
     same per round type (confusable, marginal, confirm, screen)."""
@@ -198,7 +220,7 @@ def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int
 
     errors = [r for r in rows if "error" in r]
     print(f"\n{n} seeds, {sum(bool(r['proposed']) for r in rows)} with discrimination tests "
-          f"({extra_tests} each), {len(errors)} failed (scored as not named); expected {label}")  # fmt: skip
+          f"({size}), {len(errors)} failed (scored as not named); expected {label}")  # fmt: skip
     for r in errors:
         print(f"  seed {r['seed']}: {r['error']}")
     lo, hi = clopper_pearson(score("after"), n)
@@ -222,6 +244,11 @@ def summarize(rows: list[dict], expected: set[str], label: str, extra_tests: int
         later = [r for r in rows if r.get("rounds_run", 0) > 1]
         print(f"later rounds: {len(later)} seeds ran more than one round (at most {max(r['rounds_run'] for r in rows)}); "
               f"named correctly after round 1 {score('after_round1')}/{n}, after the last round {score('after')}/{n}")  # fmt: skip
+    sized = [r for r in rows if r.get("extra_tests") is not None]
+    if sized:  # rows of runs before 2026-11-26 have no count
+        counts = np.array([r["extra_tests"] for r in sized])
+        print(f"extra tests per seed: mean {counts.mean():.1f}, median {np.median(counts):.0f}, "
+              f"max {counts.max()} ({len(sized)} seeds)")  # fmt: skip
     print(f"wall per seed: {sum(r['wall_s'] for r in rows) / n:.1f} s")
 
 

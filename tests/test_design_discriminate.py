@@ -9,6 +9,7 @@ a small pool; the identity ``in-plane hinge at mid-link 2 = (A_2 + A_3 + couplin
 
 from __future__ import annotations
 
+from dataclasses import replace
 from itertools import combinations
 
 import numpy as np
@@ -21,7 +22,7 @@ from vtestbed.design.optimal import nominal_wrench, sensor_load
 from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.errors import OutOfRangeError, UnknownNameError
 from vtestbed.lab import PAPER_LAB
-from vtestbed.researcher.candidates import candidates
+from vtestbed.researcher.candidates import ModelContext, candidates
 from vtestbed.researcher.diagnose import Whitener
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.noise_floor import NoiseFloor
@@ -233,6 +234,35 @@ def test_confirming_rivals_after_a_decisive_diagnosis():
     assert disc.confirming_rivals(_report(rounds))["rivals"] == ["a", "e", "d", "c"]
     decisive[4]["overlap"] = disc.STAND_IN_R2 - 1e-9  # just below: back to the BIC order
     assert disc.confirming_rivals(_report(rounds))["rivals"] == ["a", "d", "c", "b"]
+
+
+def test_a_sized_round_stops_at_the_first_size_that_reaches_the_target(lab_model):
+    """``separation=``: the fewest tests whose smallest T reaches the target, else ``max_k`` (fixed
+    sizes, chosen the same way, are the reference)."""
+    robot, kin, setup, pool, white, terms = lab_model
+    old = disc.proposed_context(kin, setup, PAPER_LAB, pool[:6])
+    y = _hyp("scale", [terms["scanner_scale"]], [2e-3]).predict(old).reshape(-1, 6)
+    noise = np.random.default_rng(3).normal(0.0, SIGMA, size=y.shape)
+    ctx = ModelContext(
+        [replace(m, displacement=y[i] + noise[i]) for i, m in enumerate(old.measurements)], setup, kin
+    )
+    rivals = {"reason": "marginal", "base_terms": [], "rivals": [disc.BASELINE, "scanner_scale"], "round": 0}
+
+    def propose(k, **kw):
+        return disc.propose(ctx, white, list(terms.values()), rivals, pool, PAPER_LAB, k, **kw)
+
+    fixed = {k: propose(k).choice.separation_after for k in range(1, 7)}
+    assert fixed[3] < fixed[4] < fixed[6]
+    sized = propose(1, separation=(fixed[3] + fixed[4]) / 2, max_k=6)
+    assert len(sized.tests) == 4 and sized.to_dict()["target_met"] is True
+    assert sized.choice.separation_after == pytest.approx(fixed[4], rel=1e-12)
+    short = propose(1, separation=2 * fixed[6], max_k=6)  # out of reach: the largest round, said so
+    assert len(short.tests) == 6 and short.to_dict()["target_met"] is False
+    assert propose(3).to_dict()["separation_target"] is None and len(propose(3, max_k=6).tests) == 3
+    with pytest.raises(OutOfRangeError, match="separation = -1"):
+        propose(2, separation=-1.0)
+    with pytest.raises(OutOfRangeError, match="max_k = 1 is below"):
+        propose(2, separation=5.0, max_k=1)
 
 
 def test_bad_input(lab_model):

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from vtestbed.design import discriminate as disc
-from vtestbed.discovery import _researcher_view, discover
+from vtestbed.discovery import _researcher_view, discover, markdown
 from vtestbed.errors import ScenarioError, UnknownNameError
 from vtestbed.experiment import simulate
 from vtestbed.files import read_toml
@@ -117,6 +117,11 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
     md = (out / "discover.md").read_text()
     assert "**Before**: named nothing." in md and "**After**: named `joint_coupling(2,3)`." in md
     assert f"**Undecided** (marginal): {', '.join(f'`{r}`' for r in result['rivals']['rivals'])}." in md
+    # a fixed-size round says nothing of a target; a sized one says whether it reached it
+    assert prop["separation_target"] is None and prop["target_met"] is None and "(target" not in md
+    sized = json.loads(json.dumps(result, default=float))
+    sized["proposal"] |= {"separation_target": 25.0, "target_met": False}
+    assert f"{prop['separation_after']:.1f} (target 25: not met)." in markdown(sized)
 
 
 def _t_direct(a, b, white, *contexts) -> float:
@@ -251,6 +256,22 @@ def test_cli_discover_refuses_bad_input(tmp_path, capsys):
             [str(path), "--out", str(tmp_path / "e"), "--rounds", "0"],
             "rounds = 0 is outside the valid range [1, 5]",
         ),
+        (
+            [str(path), "--out", str(tmp_path / "f"), "--separation", "-3"],
+            "separation = -3.0 must be a positive",
+        ),
+        (
+            [str(path), "--out", str(tmp_path / "g"), "--separation", "nan"],
+            "separation = nan must be a positive",
+        ),
+        (
+            [str(path), "--out", str(tmp_path / "h"), "--separation", "--max-extra-tests", "5"],
+            "max_extra_tests = 5 is outside the valid range [10, 50]",
+        ),
+        (
+            [str(path), "--out", str(tmp_path / "i"), "--max-extra-tests", "20"],
+            "max_extra_tests = 20 sizes a round only with a separation target",
+        ),
     ]
     for argv, message in cases:
         code = cli_main.main(["discover", *argv])
@@ -283,3 +304,4 @@ def test_cli_choices_match_the_library():
 
     assert opts["n_poses"].default == inspect.signature(discover).parameters["n_poses"].default
     assert opts["rounds"].default == inspect.signature(discover).parameters["rounds"].default
+    assert opts["separation"].const == disc.SEPARATION_TARGET and opts["separation"].default is None

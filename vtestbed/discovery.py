@@ -38,6 +38,7 @@ import numpy as np
 
 from .dataset import CLOUD_DIR, TRUTH_FILE
 from .design import discriminate as disc
+from .discovery_markdown import markdown
 from .errors import DatasetError, OutOfRangeError, VtestbedError
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
@@ -46,7 +47,6 @@ from .researcher.diagnose import (
     DEFAULT_ALPHA,
     DEFAULT_RANK,
     Whitener,
-    confusable_margin,
     require_floor,
     require_rank,
 )
@@ -181,6 +181,8 @@ def discover(
     always: bool = False,
     rounds: int = 1,
     rank_by: str = DEFAULT_RANK,
+    separation: float | None = None,
+    max_extra_tests: int | None = None,
 ) -> dict:
     """Simulate, diagnose, propose extra tests if undecided, simulate them, diagnose again.
 
@@ -213,6 +215,14 @@ def discover(
         ``proposal.toml`` (round 1) or ``proposalK.toml``.
     rank_by : str
         How every diagnosis ranks the significant candidates (:data:`.researcher.diagnose.RANK_CRITERIA`).
+    separation : float, optional
+        Size each round: ``extra_tests``, then one more at a time up to ``max_extra_tests``, until
+        the design's smallest predicted T over the rival pairs reaches this (noise-floor units;
+        :data:`vtestbed.design.discriminate.SEPARATION_TARGET` = 25 is a 1-df test at 0.1 % with
+        95 % power). A screen round (``always``, nothing named or near the level) keeps
+        ``extra_tests``. None (default): every round has ``extra_tests`` tests.
+    max_extra_tests : int, optional
+        A sized round's largest size, in [``extra_tests``, 50]; default ``3 * extra_tests`` (at most 50).
 
     Returns
     -------
@@ -238,6 +248,7 @@ def discover(
     lo, hi = ROUNDS_RANGE
     if not (isinstance(rounds, (int, np.integer)) and lo <= rounds <= hi):
         raise OutOfRangeError(f"rounds = {rounds!r} is outside the valid range [{lo}, {hi}]")
+    max_extra_tests = _round_size_limit(extra_tests, separation, max_extra_tests)
     require_rank(rank_by)  # before the simulation, not in the first diagnosis after it
     out = Path(out)
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
@@ -263,7 +274,7 @@ def discover(
         entry, current, dataset, report = _discrimination_round(
             k, scenario, current, dataset, rivals, out, lab,
             dict(alpha=alpha, extra_tests=extra_tests, criterion=criterion, n_poses=n_poses, tensions=tensions,
-                 rank_by=rank_by),
+                 rank_by=rank_by, separation=separation, max_extra_tests=max_extra_tests),
             progress,
         )  # fmt: skip
         result["rounds"].append(entry)
@@ -272,6 +283,24 @@ def discover(
     result |= {"named_after": last["named"], "validation_gap_after": last["validation_gap"],
                "confusable_after": last["confusable"]}  # fmt: skip
     return _finish(result, out)
+
+
+def _round_size_limit(extra_tests: int, separation, max_extra_tests) -> int:
+    """The largest round: ``extra_tests`` unless sized by ``separation`` (checked: positive)."""
+    if separation is None:
+        if max_extra_tests is not None:
+            raise OutOfRangeError(
+                f"max_extra_tests = {max_extra_tests!r} sizes a round only with a separation target "
+                "(separation=, --separation)"
+            )
+        return extra_tests
+    if not (isinstance(separation, (int, float, np.floating)) and np.isfinite(separation) and separation > 0):
+        raise OutOfRangeError(f"separation = {separation!r} must be a positive number (noise-floor units)")
+    hi = EXTRA_TESTS_RANGE[1]
+    limit = min(3 * extra_tests, hi) if max_extra_tests is None else max_extra_tests
+    if not (isinstance(limit, (int, np.integer)) and extra_tests <= limit <= hi):
+        raise OutOfRangeError(f"max_extra_tests = {limit!r} is outside the valid range [{extra_tests}, {hi}]")
+    return int(limit)
 
 
 def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, options, progress):
@@ -297,6 +326,10 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
         options["extra_tests"],
         options["criterion"],
         feasible=lab,
+        # a screen round (nothing named, nothing near the level) has no evidence to size against: the
+        # rivals' fits are noise, and in the clean world sizing took 30 tests in 11 of 20 seeds
+        separation=None if rivals["reason"] == "screen" else options["separation"],
+        max_k=options["max_extra_tests"],
     )
     refused = sum(v is not None for v in lab.refused.values()) - refused_before
     entry = {"round": k, "rivals": rivals, "proposal": proposal.to_dict() | {"tests_refused_by_the_lab": refused},
@@ -335,51 +368,3 @@ def _finish(result: dict, out: Path) -> dict:
     write_json_atomic(out / "discover.json", json.loads(json.dumps(result, default=float)))
     write_text_atomic(out / "discover.md", markdown(result))
     return result
-
-
-def _tests(n: int) -> str:
-    return f"{n} test" + ("" if n == 1 else "s")
-
-
-def markdown(result: dict) -> str:
-    """A short report: the names before and after, and the separation before and after."""
-
-    def names(v):
-        return ", ".join(f"`{n}`" for n in v) if v else "nothing"
-
-    lines = [f"# discover: {result['scenario']} (seed {result['seed']}, alpha {result['alpha']:g})", "",
-             f"**Before**: named {names(result['named_before'])}."]  # fmt: skip
-    for c in result["confusable_before"]:
-        lines.append(f"- `{c['chosen']}` could also be `{c['runner_up']}` ({confusable_margin(result, c)})")
-    if result["rivals"] is None:
-        return "\n".join([*lines, "", result.get("note", ""), ""])
-    p, r = result["proposal"], result["rivals"]
-    mb, ma = result["measured_before"], result["measured_after"]
-    lines += [
-        "",
-        {"confirm": "**Confirming** (decisive, `--always`)", "screen": "**Screening** (nothing named, `--always`)"}
-        .get(r["reason"], f"**Undecided** ({r['reason']})")
-        + f": {names(r['rivals'])}"
-        + (f" on top of {names(r['base_terms'])}" if r["base_terms"] else "") + ".",
-        f"**Proposed** {_tests(len(p['tests']))} more ({p['criterion']}-optimal among {p['pool_size']} "
-        f"candidates; {p['tests_refused_by_the_lab']} refused by the lab): predicted separation "
-        f"(smallest T over the rival pairs, noise floor units) {p['separation_before']:.1f} -> "
-        f"{p['separation_after']:.1f}.",
-        f"Measured: the best rival `{mb['best']}` leads by BIC {mb['delta_bic']:.1f} before; "
-        f"`{ma['best']}` by {ma['delta_bic']:.1f} after.",
-    ]  # fmt: skip
-    for r in result["rounds"][1:]:  # the later rounds, each from the undecided diagnosis before it
-        p, ma = r["proposal"], r["measured_after"]
-        lines.append(f"**Round {r['round']}** ({r['rivals']['reason']}, after round {r['round'] - 1} named "
-                     f"{names(result['rounds'][r['round'] - 2]['named'])}): {names(r['rivals']['rivals'])}; "
-                     f"{_tests(len(p['tests']))} more, predicted separation {p['separation_before']:.1f} -> "
-                     f"{p['separation_after']:.1f}; measured: `{ma['best']}` leads by BIC {ma['delta_bic']:.1f}.")  # fmt: skip
-    n = len(result["rounds"])
-    lines += ["", f"**After**{f' {n} rounds' if n > 1 else ''}: named {names(result['named_after'])}."]
-    vb, va = result.get("validation_gap_before"), result.get("validation_gap_after")
-    if vb and va:
-        lines.append(f"Validation prediction error over the noise floor: {vb['baseline']:.2f} with the paper's "
-                     f"model, {vb['named']:.2f} with the terms named before, {va['named']:.2f} after.")  # fmt: skip
-    for c in result["confusable_after"]:
-        lines.append(f"- still `{c['chosen']}` or `{c['runner_up']}` ({confusable_margin(result, c)})")
-    return "\n".join(lines) + "\n"

@@ -15,7 +15,7 @@ def _cmd_discover(args) -> int:
     result = discover(
         load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
         criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
-        rounds=args.rounds,
+        rounds=args.rounds, separation=args.separation, max_extra_tests=args.max_extra_tests,
     )  # fmt: skip
     if args.json:
         print(dumps(result, indent=1, default=float))
@@ -51,6 +51,12 @@ def register(sub) -> None:
     p.add_argument("--rounds", type=int, default=1,
                    help="rounds of extra tests at most, 1-5: after the first, another runs while the "
                         "diagnosis is still undecided (default %(default)s)")  # fmt: skip
+    p.add_argument("--separation", type=float, nargs="?", const=25.0, default=None, metavar="T",
+                   help="size each round: from --extra-tests, one more test at a time until the smallest "
+                        "predicted T over the rival pairs reaches T (noise-floor units; 25 without a value: "
+                        "a 1-df test at 0.1 %% with 95 %% power)")  # fmt: skip
+    p.add_argument("--max-extra-tests", type=int, default=None,
+                   help="a sized round's largest size, --extra-tests to 50 (default 3 x --extra-tests)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_discover)

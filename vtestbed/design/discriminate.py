@@ -48,7 +48,7 @@ from .rivals import (
 )
 
 __all__ = [  # the rivals' selection lives in .rivals; re-exported: discover and the tests use it here
-    "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "STAND_IN_R2", "Choice", "Hypothesis",
+    "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "SEPARATION_TARGET", "STAND_IN_R2", "Choice", "Hypothesis",
     "PairBlocks", "Proposal", "choose", "confirming_rivals", "fit_hypotheses", "pair_blocks", "proposed_context", "propose",
     "rivals_from_report", "test_pool",
 ]  # fmt: skip
@@ -59,6 +59,9 @@ DEFAULT_TENSIONS_N = (DEFAULT_TENSION_N, 2 * DEFAULT_TENSION_N)
 # The campaigns' default lab constraints on the block (vtestbed.campaigns.spec.PoseSetOptions).
 DEFAULT_CONSTRAINTS = PoseConstraints("block", 0.8, (0.3, -1.0, 0.0), (2.3, 1.0, 2.2))
 MIN_INV_KAPPA = 0.3  # away from singularity: the paper's regions use 0.7, the whole range is [0, 1]
+# A sized round's default target: the noncentrality at which a 1-df likelihood-ratio test at the
+# 0.1 % level has 95 % power ((3.29 + 1.645)^2 = 24.4): the rival would be rejected if the other is true.
+SEPARATION_TARGET = 25.0
 
 
 @dataclass(frozen=True)
@@ -308,10 +311,13 @@ class Proposal:
     choice: Choice
     pool_size: int
     chi2: dict = field(default_factory=dict)  # rival label -> its chi^2 on the old tests
+    target: float | None = None  # the separation the round was sized to reach (None: fixed size)
 
     def to_dict(self) -> dict:
         c = self.choice
         return {"reason": self.reason, "base_terms": list(self.base_terms), "rivals": list(self.rivals),
+                "separation_target": self.target,
+                "target_met": None if self.target is None else bool(c.separation_after >= self.target),
                 "criterion": c.criterion, "pairs": [list(p) for p in c.pairs],
                 "nested_pairs": [list(p) for p in c.nested], "pool_size": self.pool_size,
                 "separation_before": c.separation_before, "separation_after": c.separation_after,
@@ -330,6 +336,8 @@ def propose(
     criterion: str = "T",
     feasible=None,
     max_rounds: int = 60,
+    separation: float | None = None,
+    max_k: int | None = None,
 ) -> Proposal:
     """Choose ``k`` of ``tests`` (candidate tests) that separate ``rivals`` (see :func:`rivals_from_report`).
 
@@ -339,27 +347,43 @@ def propose(
     scanner must see the block): a chosen test it refuses is excluded and the choice is redone,
     ``max_rounds`` times at most (the tests that separate best are often at the edge of what the
     lab allows: one world of ``bench_discriminate`` needed 46 exclusions).
+
+    With ``separation`` (noise-floor units, e.g. :data:`SEPARATION_TARGET`) the round is sized:
+    ``k``, ``k + 1``, ... up to ``max_k`` tests until the smallest predicted T over the rival pairs
+    reaches it (the proposal says whether it did).
     """
     tests = tuple(tests)
+    if separation is not None and not (np.isfinite(separation) and separation > 0):
+        raise OutOfRangeError(f"separation = {separation!r} must be a positive number (noise-floor units)")
+    max_k = k if separation is None or max_k is None else max_k
+    if max_k < k:
+        raise OutOfRangeError(f"max_k = {max_k} is below the round's first size k = {k}")
     hyps = fit_hypotheses(ctx, white, rivals["base_terms"], rivals["rivals"], pool_candidates)
     ctx_pool = proposed_context(ctx.kin, ctx.setup, lab, tests)
     # every ordered pair for T; "difference" is symmetric: one direction per pair
     blocks = [pair_blocks(a, b, ctx, ctx_pool, white, criterion) for i, a in enumerate(hyps)
               for j, b in enumerate(hyps) if i < j or (i > j and criterion == "T")]  # fmt: skip
-    excluded: set[int] = set()
+    excluded: set[int] = set()  # refused by the lab: stays refused at every size
+    for size in range(k, max_k + 1):
+        choice = _lab_choice(blocks, size, criterion, tests, feasible, excluded, max_rounds)
+        if separation is None or choice.separation_after >= separation:
+            break
+    return Proposal(rivals["reason"], tuple(rivals["base_terms"]), tuple(rivals["rivals"]),
+                    tuple(tests[i] for i in choice.indices), choice, len(tests),
+                    {h.label: h.chi2 for h in hyps}, separation)  # fmt: skip
+
+
+def _lab_choice(blocks, k, criterion, tests, feasible, excluded: set, max_rounds: int) -> Choice:
+    """:func:`choose` ``k`` tests, excluding (and adding to ``excluded``) those ``feasible`` refuses."""
     for _ in range(max_rounds):
         choice = choose(blocks, k, criterion, exclude=excluded)
         bad = {i for i in choice.indices if feasible is not None and not feasible(tests[i])}
         if not bad:
-            break
+            return choice
         excluded |= bad
-    else:
-        raise OutOfRangeError(
-            f"after {max_rounds} choices the lab still refused some of the {k} proposed tests "
-            f"({len(excluded)} of {len(tests)} candidates refused: the scanner cannot see the block, or "
-            "the sensor leaves its range): draw more candidate poses (discover --n-poses, now "
-            f"a pool of {len(tests)} tests) or ask for fewer tests (--extra-tests)"
-        )
-    return Proposal(rivals["reason"], tuple(rivals["base_terms"]), tuple(rivals["rivals"]),
-                    tuple(tests[i] for i in choice.indices), choice, len(tests),
-                    {h.label: h.chi2 for h in hyps})  # fmt: skip
+    raise OutOfRangeError(
+        f"after {max_rounds} choices the lab still refused some of the {k} proposed tests "
+        f"({len(excluded)} of {len(tests)} candidates refused: the scanner cannot see the block, or "
+        "the sensor leaves its range): draw more candidate poses (discover --n-poses, now "
+        f"a pool of {len(tests)} tests) or ask for fewer tests (--extra-tests)"
+    )
