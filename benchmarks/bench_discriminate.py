@@ -37,6 +37,7 @@ from bench_discrepancy import (  # benchmarks/ is on sys.path when run as a scri
     scaled,
 )
 
+from vtestbed.design.discriminate import SEPARATION_TARGET
 from vtestbed.discovery import discover
 from vtestbed.errors import VtestbedError
 from vtestbed.scenario import parse_scenario, read_scenario_file
@@ -120,7 +121,7 @@ def main() -> None:
     ap.add_argument("--always", action="store_true", help="discover --always: a round of tests on every seed")
     ap.add_argument("--rounds", type=int, default=1,
                     help="discover --rounds: later rounds while the diagnosis stays undecided (default 1)")  # fmt: skip
-    ap.add_argument("--separation", type=float, nargs="?", const=25.0, default=None, metavar="T",
+    ap.add_argument("--separation", type=float, nargs="?", const=SEPARATION_TARGET, default=None, metavar="T",
                     help="discover --separation: size each round until the predicted separation reaches T")  # fmt: skip
     ap.add_argument("--max-extra-tests", type=int, default=None, help="discover --max-extra-tests")
     ap.add_argument("--workers", type=int, default=1)
