@@ -294,8 +294,7 @@ def _round_size_limit(extra_tests: int, separation, max_extra_tests) -> int:
                 "(separation=, --separation)"
             )
         return extra_tests
-    if not (isinstance(separation, (int, float, np.floating)) and np.isfinite(separation) and separation > 0):
-        raise OutOfRangeError(f"separation = {separation!r} must be a positive number (noise-floor units)")
+    disc.require_separation(separation)  # before the simulation: propose checks it again, per round
     hi = EXTRA_TESTS_RANGE[1]
     limit = min(3 * extra_tests, hi) if max_extra_tests is None else max_extra_tests
     if not (isinstance(limit, (int, np.integer)) and extra_tests <= limit <= hi):

@@ -50,7 +50,7 @@ from .rivals import (
 __all__ = [  # the rivals' selection lives in .rivals; re-exported: discover and the tests use it here
     "BASELINE", "CRITERIA", "MARGINAL_FACTOR", "MAX_RIVALS", "SEPARATION_TARGET", "STAND_IN_R2", "Choice", "Hypothesis",
     "PairBlocks", "Proposal", "choose", "confirming_rivals", "fit_hypotheses", "pair_blocks", "proposed_context", "propose",
-    "rivals_from_report", "test_pool",
+    "require_separation", "rivals_from_report", "test_pool",
 ]  # fmt: skip
 
 CRITERIA = ("T", "difference")
@@ -353,8 +353,8 @@ def propose(
     reaches it (the proposal says whether it did).
     """
     tests = tuple(tests)
-    if separation is not None and not (np.isfinite(separation) and separation > 0):
-        raise OutOfRangeError(f"separation = {separation!r} must be a positive number (noise-floor units)")
+    if separation is not None:
+        require_separation(separation)
     max_k = k if separation is None or max_k is None else max_k
     if max_k < k:
         raise OutOfRangeError(f"max_k = {max_k} is below the round's first size k = {k}")
@@ -371,6 +371,13 @@ def propose(
     return Proposal(rivals["reason"], tuple(rivals["base_terms"]), tuple(rivals["rivals"]),
                     tuple(tests[i] for i in choice.indices), choice, len(tests),
                     {h.label: h.chi2 for h in hyps}, separation)  # fmt: skip
+
+
+def require_separation(separation) -> float:
+    """``separation`` [noise-floor units] as a float; OutOfRangeError unless a positive finite number."""
+    if not (isinstance(separation, (int, float, np.floating)) and np.isfinite(separation) and separation > 0):
+        raise OutOfRangeError(f"separation = {separation!r} must be a positive number (noise-floor units)")
+    return float(separation)
 
 
 def _lab_choice(blocks, k, criterion, tests, feasible, excluded: set, max_rounds: int) -> Choice:

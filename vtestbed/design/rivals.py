@@ -114,11 +114,7 @@ def confirming_rivals(report: dict) -> dict:
     chosen = rnd["chosen"] if rnd["chosen"] not in dropped else None
     lead = chosen or BASELINE
     if chosen:
-        overlapping = sorted(
-            (t for t in rnd["tests"] if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2),
-            key=lambda t: -t["overlap"],
-        )
-        ranked = [t["label"] for t in overlapping] + ranked
+        ranked = _stand_ins(rnd, chosen, dropped) + ranked
     order = dict.fromkeys(label for label in ranked if label not in (lead, *dropped))
     rivals = [lead, *order][:MAX_RIVALS]
     base_terms = [term for term in rnd["base"] if term not in dropped]
