@@ -14,6 +14,13 @@ Rules (among the significant candidates; chi^2 = the baseline's chi^2 minus the 
 - ``press+M``: the fewest parameters among the candidates within M of the lowest held-out error
   (a one-standard-error rule), ties by held-out error.
 
+A second table takes the researcher's view of the same first rounds, under ``diagnose``'s own
+rule: is the first name right, and does the report say it is *undecided* (what ``vtestbed
+discover`` acts on: :func:`vtestbed.design.rivals.rivals_from_report`, a runner-up within the
+confusable margin, a weak name, or nothing named with a candidate near the level)? A wrong name
+the report calls decided is the one outcome that misleads; the others are right, flagged, or an
+honest "nothing".
+
     .venv/bin/python benchmarks/bench_discrepancy.py --limit-only --limit-power 0.85 --out near.json
     .venv/bin/python benchmarks/rerank_first_round.py near.json
 """
@@ -22,7 +29,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import Counter
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, not installed
+
+from vtestbed.design.rivals import rivals_from_report  # noqa: E402
+from vtestbed.researcher.diagnose import DEFAULT_ALPHA  # noqa: E402
 
 RULES = ("press", "bic", "aic", "p", "press+2", "press+4", "press+6", "press+10")
 
@@ -60,7 +74,8 @@ def main() -> None:
     for path in args.records:
         try:
             with open(path) as f:
-                lines = tally(json.load(f)["results"])
+                results = json.load(f)["results"]
+            lines = [*tally(results), "", *verdict_table(results)]
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             parser.exit(2, f"error: {path}: not a record of bench_discrepancy.py --out (a JSON object "
                            f"with 'results', each trial with 'chi2' and 'round1' rows): {exc!r}\n")  # fmt: skip
@@ -82,6 +97,46 @@ def tally(results: dict) -> list[str]:
         total.update(right)
         lines.append(f"{world:42s}" + "".join(f"{right[rule]:9d}" for rule in RULES) + f"   {n:6d}")
     lines.append(f"{'total':42s}" + "".join(f"{total[rule]:9d}" for rule in RULES))
+    return lines
+
+
+VERDICTS = ("right, decided", "right, undecided", "wrong, undecided", "wrong, decided",
+            "nothing, undecided", "nothing, decided")  # fmt: skip
+
+
+def first_round_report(rows: list[dict], alpha: float = DEFAULT_ALPHA) -> dict:
+    """The part of ``diagnose``'s report that :func:`rivals_from_report` reads, for a first round
+    of ``rows`` ranked by the held-out error (``press``, ties by BIC), as ``diagnose`` ranks them.
+    The round's level is ``alpha`` over the rows (the first round's Bonferroni split)."""
+    significant = sorted((r for r in rows if r["significant"]), key=lambda r: (r["press"], r["bic"]))
+    chosen = significant[0] if significant else None
+    runner = significant[1] if len(significant) > 1 else None
+    delta = runner["press"] - chosen["press"] if runner else None
+    rnd = {"base": [], "tests": rows, "chosen": chosen and chosen["label"],
+           "runner_up": runner and runner["label"], "delta": delta, "level": alpha / len(rows)}  # fmt: skip
+    return {"alpha": alpha, "rank_by": "press", "rounds": [rnd], "dropped": []}
+
+
+def verdict(rows: list[dict], want: str | None, alpha: float = DEFAULT_ALPHA) -> str:
+    """One of :data:`VERDICTS`: is the first name ``want`` (an effect name; None: nothing should
+    be named), and does the report leave the round undecided?"""
+    report = first_round_report(rows, alpha)
+    label = report["rounds"][0]["chosen"]
+    name = next((r["name"] for r in rows if r["label"] == label), None)
+    right = "nothing" if name is None else ("right" if name == want else "wrong")
+    return f"{right}, {'undecided' if rivals_from_report(report) else 'decided'}"
+
+
+def verdict_table(results: dict) -> list[str]:
+    """Per world, how many first rounds end in each of :data:`VERDICTS`."""
+    lines = ["first round as the report states it (held-out ranking; undecided = what discover acts on)",
+             f"{'world':42s}" + "".join(f"{v:>20s}" for v in VERDICTS)]  # fmt: skip
+    total = Counter()
+    for world, trials in results.items():
+        counts = Counter(verdict(t["round1"], expected_name(world)) for t in trials if "error" not in t)
+        total.update(counts)
+        lines.append(f"{world:42s}" + "".join(f"{counts[v]:20d}" for v in VERDICTS))
+    lines.append(f"{'total':42s}" + "".join(f"{total[v]:20d}" for v in VERDICTS))
     return lines
 
 
