@@ -76,10 +76,12 @@ def test_the_search_records_each_rounds_overlap(hidden_offset):
 
 
 def test_the_report_lists_the_candidates_that_could_stand_in():
-    """Only named terms, only overlaps at or above STAND_IN_R2, largest first."""
+    """Only named terms, only overlaps at or above STAND_IN_R2, largest first; an absorbed
+    candidate (no free parameter, df 0) is not a stand-in."""
     rows = [{"label": "a", "overlap": None}, {"label": "b", "overlap": 0.98}, {"label": "c", "overlap": 0.2},
             {"label": "d", "overlap": STAND_IN_R2}, {"label": "e", "overlap": 0.75}]  # fmt: skip
-    other = [{"label": "b", "overlap": None}, {"label": "a", "overlap": 0.9}]
+    rows = [{**r, "df": 1} for r in rows] + [{"label": "f", "overlap": 0.99, "df": 0}]
+    other = [{"label": "b", "overlap": None, "df": 1}, {"label": "a", "overlap": 0.9, "df": 1}]
     report = {"named": ["a"], "rounds": [{"chosen": "a", "tests": rows}, {"chosen": "b", "tests": other}]}
     assert stand_ins(report) == {"a": [("b", 0.98), ("e", 0.75), ("d", STAND_IN_R2)]}
     rows[1]["overlap"] = STAND_IN_R2 - 1e-9

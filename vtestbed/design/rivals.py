@@ -10,7 +10,12 @@ ranking criterion, ``rank_by``: reports before 2026-11-26 ranked by BIC), never 
 
 from __future__ import annotations
 
-from ..researcher.diagnose import CONFUSABLE_MARGIN, STAND_IN_R2, report_rank
+from ..researcher.diagnose import (
+    CONFUSABLE_MARGIN,
+    STAND_IN_R2,  # noqa: F401 (its docstrings' threshold; design.discriminate re-exports it)
+    report_rank,
+    round_stand_ins,
+)
 
 BASELINE = "baseline"  # the label of the model without a further term
 MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
@@ -74,13 +79,9 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
 
 
 def _stand_ins(rnd: dict, lead: str, dropped) -> list[str]:
-    """The candidates of round ``rnd`` that reproduce at least :data:`STAND_IN_R2` of ``lead``'s
-    fitted pattern, largest share first (older reports have no ``overlap_of``: their shares are of
-    the chosen term, and of nothing when nothing was chosen)."""
-    if rnd.get("overlap_of", rnd["chosen"]) != lead:
-        return []
-    alike = [t for t in rnd["tests"] if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2]
-    return [t["label"] for t in sorted(alike, key=lambda t: -t["overlap"]) if t["label"] not in dropped]
+    """The labels of :func:`~vtestbed.researcher.diagnose.round_stand_ins` (largest share first)
+    that the stepwise search did not drop."""
+    return [label for label, _ in round_stand_ins(rnd, lead) if label not in dropped]
 
 
 def _scorer(report: dict):

@@ -165,6 +165,22 @@ def stand_in_overlap(
     return out
 
 
+def round_stand_ins(rnd: dict, lead: str) -> list[tuple[str, float]]:
+    """The candidates of a report's round ``rnd`` that reproduce at least :data:`STAND_IN_R2` of
+    ``lead``'s fitted pattern, as (label, share) pairs, largest share first: the round's
+    ``overlap`` column (:func:`stand_in_overlap`). Empty when the round's shares are of another
+    candidate (``overlap_of``; reports before 2026-11-26 have none: their shares are of the
+    chosen term, and of nothing when nothing was chosen)."""
+    if rnd.get("overlap_of", rnd["chosen"]) != lead:
+        return []
+    alike = [
+        (t["label"], t["overlap"])
+        for t in rnd["tests"]
+        if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2
+    ]
+    return sorted(alike, key=lambda pair: -pair[1])
+
+
 def step_level(alpha: float, n_candidates: int, n_named: int, max_terms: int) -> float:
     """The level of one forward round's tests: Bonferroni over the ``n_candidates`` in play.
 

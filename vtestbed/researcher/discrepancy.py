@@ -24,7 +24,6 @@ from .diagnose import (
     CONFUSABLE_MARGIN,
     DEFAULT_ALPHA,
     DEFAULT_RANK,
-    STAND_IN_R2,
     Whitener,
     absorbed_by,
     confusable_margin,
@@ -34,6 +33,7 @@ from .diagnose import (
     require_floor,
     require_rank,
     require_tests,
+    round_stand_ins,
     validation_gap,
 )
 from .kinematics import ArmKinematics
@@ -150,11 +150,7 @@ def stand_ins(report: dict) -> dict:
     in the round that named it, as (label, share) pairs, largest first (none: left out)."""
     out = {}
     for rnd in (r for r in report["rounds"] if r["chosen"] in report["named"]):
-        alike = sorted(
-            ((t["label"], t["overlap"]) for t in rnd["tests"] if (t.get("overlap") or 0.0) >= STAND_IN_R2),
-            key=lambda pair: -pair[1],
-        )
-        if alike:
+        if alike := round_stand_ins(rnd, rnd["chosen"]):
             out[rnd["chosen"]] = alike
     return out
 
