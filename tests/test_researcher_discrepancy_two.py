@@ -71,7 +71,8 @@ def test_stepwise_naming_drops_the_term_that_stood_in_for_both(two_effects):
     assert [d["label"] for d in drops] == ["block_offset"]
     (drop,) = drops
     assert sorted(drop["others"]) == sorted(TRUE) and drop["df"] == 6
-    assert drop["p_value"] == pytest.approx(chi2_dist.sf(drop["lr"], 6), rel=1e-9)
+    # a floor of 100 000 samples is known: the p-value is chi^2's (floor_calibration's draws agree to 1e-4)
+    assert drop["p_value"] == pytest.approx(chi2_dist.sf(drop["lr"], 6), rel=1e-4)
     # the level of a forward round from the two others (a round after a first name: alpha shared by
     # the max_terms - 1 = 2 such rounds, over the 12 candidates then in play)
     assert drop["p_value"] > 0.9 and drop["level"] == pytest.approx(DEFAULT_ALPHA / (12 * 2))

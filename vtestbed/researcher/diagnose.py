@@ -27,9 +27,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import (
-    chdtrc,
-)  # the chi^2 survival function (scipy.stats.chi2.sf), without scipy.stats' import
 
 from ..errors import DatasetError, OutOfRangeError, UnknownNameError
 from .candidates import Candidate, ModelContext
@@ -227,8 +224,7 @@ def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n
         for term in chosen:
             others = [t for t in chosen if t is not term]
             fit = fit_model(ctx, white, others)
-            lr, df = max(fit.chi2 - current.chi2, 0.0), current.rank - fit.rank
-            p = float(chdtrc(df, lr)) if df > 0 else 1.0
+            lr, p, df = current.lr_p_value(fit, term.label)
             if p >= level and (worst is None or p > worst[0]):
                 worst = (p, term, fit, lr, df, [t.label for t in others])
         if worst is None:
@@ -282,9 +278,7 @@ def name_effects(
         level = step_level(alpha, len(remaining), len(chosen), max_terms)
         for cand in remaining:
             fit = fits[cand.label] = fit_model(ctx, white, [*chosen, cand])
-            df = fit.rank - current.rank
-            lr = max(current.chi2 - fit.chi2, 0.0)
-            p = float(chdtrc(df, lr)) if df > 0 else 1.0
+            lr, p, df = fit.lr_p_value(current, cand.label)
             bic = fit.chi2 + fit.rank * np.log(n_obs)
             sig = p < level
             rows.append({"label": cand.label, "name": cand.name, "lr": lr, "df": df, "p_value": p,

@@ -9,12 +9,13 @@ Units: SI; displacements in the unloaded block frame [m, rad], compliances in ra
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
-from scipy.special import chdtrc  # the chi^2 survival function, without scipy.stats' import
 
 from ..errors import OutOfRangeError
 from .candidates import Candidate, ModelContext
+from .floor_calibration import fit_p_value, inflation, lr_p_value
 from .identify import stack
 from .noise_floor import NoiseFloor
 
@@ -34,14 +35,29 @@ class ModelFit:
     compliance_std: np.ndarray = field(default=None, repr=False)  # (n,) rad/(N*m), noise floor as known
     rank: int = 0  # independent columns of the fitted design: the parameters the data determine
     press: float = float("nan")  # whitened leave-one-test-out prediction error (:func:`_leave_one_test_out`)
+    design: np.ndarray = field(
+        default=None, repr=False
+    )  # (6T, k) the whitened columns at the last linearisation
+    column_terms: tuple = ()  # (k,) the term label of each column ("" for a compliance)
+    nu: int = 0  # the noise floor's sample count
 
     @property
     def stiffness(self) -> np.ndarray:
         return 1.0 / self.compliance
 
-    @property
+    @cached_property
     def p_value(self) -> float:
-        return float(chdtrc(self.dof, self.chi2))
+        """The detection test's p-value: chi^2 against the floor, allowing for its estimation
+        (:func:`.floor_calibration.fit_p_value`)."""
+        return fit_p_value(self.chi2, self.design, self.nu)
+
+    def lr_p_value(self, other: ModelFit, label: str) -> tuple[float, float, int]:
+        """The likelihood-ratio test of term ``label`` of this fit against ``other``, the fit
+        without it: (likelihood ratio, p-value allowing for the floor's estimation, degrees of
+        freedom: the rank it adds)."""
+        lr, df = max(other.chi2 - self.chi2, 0.0), self.rank - other.rank
+        tested = np.array([t == label for t in self.column_terms])
+        return lr, lr_p_value(lr, self.design, tested, df, self.nu), df
 
     @property
     def stiffness_std(self) -> np.ndarray:
@@ -59,9 +75,10 @@ class Whitener:
     """x -> C^-1 x / sqrt(f) per test, with ``C C^T`` the noise floor's 6x6 covariance.
 
     The floor is estimated from ``nu`` samples, so a quadratic form in its inverse is inflated by
-    ``f = nu / (nu - 7)`` on average (inverse Wishart, 6 components); dividing it out keeps the
-    chi^2 tests at their nominal level (measured: chi^2 124 +- 17 on 114 degrees of freedom with
-    nu = 75 before, the expected 114 * 75 / 68 = 126).
+    ``f = nu / (nu - 7)`` on average (inverse Wishart, 6 components: :func:`.floor_calibration.inflation`);
+    dividing it out keeps the mean of chi^2 at its degrees of freedom (measured: chi^2 124 +- 17 on
+    114 degrees of freedom with nu = 75 before, the expected 114 * 75 / 68 = 126). Its tail is
+    wider than chi^2's: the tests take their p-values from :mod:`.floor_calibration`.
     """
 
     def __init__(self, floor: NoiseFloor):
@@ -76,7 +93,8 @@ class Whitener:
             raise OutOfRangeError(
                 "the noise floor's covariance must be a finite positive definite 6x6 matrix"
             )
-        self.inflation = nu / (nu - 7)
+        self.n_samples = nu
+        self.inflation = inflation(nu)
         self.inv_chol = np.linalg.inv(np.linalg.cholesky(cov)) / np.sqrt(self.inflation)
 
     def __call__(self, stacked: np.ndarray) -> np.ndarray:
@@ -120,7 +138,9 @@ def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterat
     dof = len(d) - rank
     labels = tuple(t.label for t in terms)
     press = _leave_one_test_out(basis, white_residuals)
-    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n], rank, press)
+    owners = ("",) * n + tuple(t.label for t, block in zip(terms, cols) for _ in range(block.shape[1]))
+    return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n], rank, press,
+                    white(x_mat), owners, white.n_samples)  # fmt: skip
 
 
 def _leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float:

@@ -1,0 +1,133 @@
+"""p-values of the discrepancy tests that allow for the noise floor being estimated.
+
+The tests of :mod:`.diagnose` whiten by the repeat scans' floor, a 6x6 covariance estimated from
+``nu`` samples (``nu = 75`` with 3 repeats of 25 tests). :class:`.model_fit.Whitener` divides out
+the floor's mean inflation of a quadratic form, ``f = nu / (nu - 7)``; that fixes the mean of
+chi^2, not its tail. The floor's error is shared by every test, so it moves all the statistics
+together: with the plain chi^2 reference, a likelihood-ratio test at 0.01 / 14 rejected a true
+baseline 2.2 times too often at ``nu = 75`` (1-df), and the detection test at 1 % rejected 2.5 %
+(Monte Carlo with Wishart floors, 40 000 draws; ``tests/test_floor_calibration.py`` repeats it).
+
+The reference here is the statistic's distribution under a parametric bootstrap of the floor,
+with the noise integrated out exactly. In the coordinates the floor whitens, the noise is
+``N(0, I)`` if the floor is right, and a repeat of the experiment would estimate
+``S* ~ Wishart(I, nu) / nu`` and whiten with ``G* = chol(S*)^-1 / sqrt(f)`` per test. Given ``S*``,
+a likelihood ratio that tests the columns ``B`` beside ``A`` is ``|Q^T G*^T z|^2``, with ``Q`` an
+orthonormal basis of ``G* B`` made orthogonal to ``G* A``: a sum of ``kappa_i chi^2_1``, the
+``kappa_i`` the eigenvalues of ``Q^T G* G*^T Q``. Its tail is taken from a scaled chi^2 with the
+same first two moments (Satterthwaite; exact for one degree of freedom), and averaged over
+:data:`DRAWS` floors drawn from a Generator seeded with :data:`SEED`, so the same data give the
+same p-values. The detection test (the baseline's chi^2) is the same with ``B`` the whole
+complement of ``A``.
+
+Not included: noise in the identification tests that the repeat scans do not see (the F/T
+sensor's noise), which makes the tests reject more often than alpha on a lab whose floor is
+underestimated, with or without this reference.
+
+Units: dimensionless (whitened columns, chi^2).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy.special import chdtrc  # the chi^2 survival function, without scipy.stats' import
+
+DRAWS = 400  # floors drawn per p-value: the average's relative error is about 5 % at p = 1e-3
+SEED = 20231122  # the draws' Generator: p-values are a deterministic function of the data
+RANK_TOL = 1e-10  # singular values below this fraction of the largest: no direction
+
+
+def inflation(nu: int) -> float:
+    """``nu / (nu - 7)``: the mean inflation of a quadratic form in the inverse of a 6x6 covariance
+    estimated from ``nu`` samples (inverse Wishart), which :class:`.model_fit.Whitener` divides out."""
+    return nu / (nu - 7)
+
+
+@lru_cache(maxsize=8)
+def floor_whiteners(nu: int) -> np.ndarray:
+    """(DRAWS, 6, 6): ``chol(S*)^-1 / sqrt(f)`` for ``S* ~ Wishart(I, nu) / nu`` (read-only).
+
+    Bartlett's decomposition draws the Cholesky factor itself, at a cost that does not grow with
+    ``nu``: ``chol(nu S*)`` is lower triangular with ``sqrt(chi^2_(nu - i))`` on its diagonal
+    (``i = 0..5``) and standard normals below it."""
+    rng = np.random.default_rng([SEED, nu])
+    factor = np.tril(rng.standard_normal((DRAWS, 6, 6)), -1)
+    factor[:, range(6), range(6)] = np.sqrt(rng.chisquare(nu - np.arange(6), size=(DRAWS, 6)))
+    g = np.linalg.inv(factor / np.sqrt(nu)) / np.sqrt(inflation(nu))
+    g.setflags(write=False)
+    return g
+
+
+def _per_test(g: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(D, 6T, k): each draw's 6x6 ``g[d]`` applied to every test's 6 rows of ``x`` (6T, k)."""
+    blocks = x.reshape(-1, 6, x.shape[-1])
+    return np.einsum("dij,tjk->dtik", g, blocks).reshape(len(g), *x.shape)
+
+
+def _basis(y: np.ndarray, rank: int | None = None) -> np.ndarray:
+    """(D, N, r): orthonormal bases of the columns of each ``y[d]`` (N, k); ``rank`` directions, or
+    those above :data:`RANK_TOL` of the largest (the same count for every draw: an invertible
+    transform keeps the rank)."""
+    if y.shape[-1] == 0:
+        return y
+    u, s, _ = np.linalg.svd(y, full_matrices=False)
+    if rank is None:
+        rank = int(np.sum(s[0] > RANK_TOL * s[0, 0]))
+    return u[..., :rank]
+
+
+def _tail(stat: float, s1: np.ndarray, s2: np.ndarray) -> float:
+    """The mean over the draws of P(sum kappa_i chi^2_1 > stat), each from the scaled chi^2
+    ``a chi^2_b`` with ``a = s2 / s1``, ``b = s1^2 / s2`` (``s1 = sum kappa``, ``s2 = sum kappa^2``)."""
+    return float(np.mean(chdtrc(s1**2 / s2, stat * s1 / s2)))
+
+
+def lr_p_value(lr: float, design: np.ndarray, tested: np.ndarray, df: int, nu: int) -> float:
+    """p-value of a likelihood ratio ``lr`` that tests the columns ``tested`` of ``design``.
+
+    Parameters
+    ----------
+    lr : float
+        ``chi2(model without the tested columns) - chi2(model with them)``, whitened as by
+        :class:`.model_fit.Whitener`.
+    design : (6T, k) array
+        The whitened columns of the model with the tested columns.
+    tested : (k,) bool array
+        Which columns the test is about (a term's parameters).
+    df : int
+        Independent directions they add (the rank difference of the two fits).
+    nu : int
+        The noise floor's sample count.
+    """
+    if df <= 0 or not lr > 0:
+        return 1.0
+    g = floor_whiteners(int(nu))
+    y = _per_test(g, np.asarray(design, float))
+    tested = np.asarray(tested, bool)
+    base = _basis(y[..., ~tested])
+    rest = y[..., tested]
+    if base.shape[-1]:
+        rest = rest - base @ np.einsum("dnr,dnk->drk", base, rest)
+    q = _basis(rest, min(int(df), rest.shape[-1]))
+    h = np.einsum("dji,dtjr->dtir", g, q.reshape(len(g), -1, 6, q.shape[-1]))  # G*^T Q per test
+    c = np.einsum("dtir,dtis->drs", h, h)
+    return _tail(lr, np.trace(c, axis1=1, axis2=2), np.sum(c**2, axis=(1, 2)))
+
+
+def fit_p_value(chi2: float, design: np.ndarray, nu: int) -> float:
+    """p-value of a fit's chi^2 (the detection test): the residual of ``design`` (6T, k), whitened,
+    tested against the floor; the degrees of freedom are ``6T`` less the design's rank."""
+    g = floor_whiteners(int(nu))
+    y = _per_test(g, np.asarray(design, float))
+    qa = _basis(y)
+    m = np.einsum("dij,dkj->dik", g, g)  # G* G*^T per test (the same 6x6 for every test)
+    n_tests = y.shape[1] // 6
+    tr_m = n_tests * np.trace(m, axis1=1, axis2=2)
+    tr_m2 = n_tests * np.sum(m * np.swapaxes(m, 1, 2), axis=(1, 2))
+    mq = np.einsum("dij,dtjr->dtir", m, qa.reshape(len(g), n_tests, 6, -1)).reshape(qa.shape)
+    qmq = np.einsum("dnr,dns->drs", qa, mq)
+    s1 = tr_m - np.trace(qmq, axis1=1, axis2=2)
+    s2 = tr_m2 - 2 * np.sum(mq * mq, axis=(1, 2)) + np.sum(qmq**2, axis=(1, 2))
+    return _tail(chi2, s1, s2)
