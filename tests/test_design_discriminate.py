@@ -282,3 +282,21 @@ def test_bad_input(lab_model):
         disc.fit_hypotheses(ctx, white, [], ["nonsense"], list(terms.values()))
     with pytest.raises(OutOfRangeError, match="n_poses"):
         disc.test_pool(robot, PAPER_LAB, np.random.default_rng(0), n_poses=0)
+
+
+def test_a_round_as_large_as_the_allowed_pool_uses_each_allowed_test_once(lab_model):
+    """k = the number of allowed tests: the exchange has nothing to swap in (it once took index 0,
+    excluded or already chosen); the set is the allowed tests, and its T is theirs."""
+    robot, kin, setup, pool, white, terms = lab_model
+    small = pool[:5]
+    ctx = disc.proposed_context(kin, setup, PAPER_LAB, small)
+    old = disc.proposed_context(kin, setup, PAPER_LAB, pool[-2:])
+    blocks = [
+        disc.pair_blocks(_hyp("c56", [terms["joint_coupling(5,6)"]], [5e-8]), _hyp("b", []), old, ctx, white)
+    ]
+    for exclude in ({0}, set()):
+        allowed = [i for i in range(len(small)) if i not in exclude]
+        choice = disc.choose(blocks, len(allowed), "T", exclude=exclude)
+        assert sorted(choice.indices) == allowed
+        state = disc._PairState(blocks[0])
+        assert choice.separation_after == pytest.approx(state.t_value(allowed), rel=1e-6)

@@ -47,6 +47,8 @@ from .researcher.diagnose import (
     DEFAULT_ALPHA,
     DEFAULT_RANK,
     Whitener,
+    fit_model,
+    identifiable,
     require_floor,
     require_rank,
 )
@@ -156,14 +158,24 @@ def _researcher_view(root: Path):
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
     ctx = ModelContext([m for m in ms if m.group == "identification"], setup, kin, ExactStatics(kin, setup))
-    return ctx, Whitener(floor), candidates(kin, CANDIDATE_NAMES)
+    white = Whitener(floor)
+    return ctx, white, researcher_pool(ctx, white)
+
+
+def researcher_pool(ctx: ModelContext, white: Whitener) -> list:
+    """The candidate terms as ``diagnose`` tests them: without the parameters the stiffnesses
+    explain (:func:`~vtestbed.researcher.diagnose.identifiable`). Left in, least squares would
+    split a compliance with them by minimum norm (a base twist about z is joint 1's compliance)."""
+    base = fit_model(ctx, white, [])
+    return identifiable(ctx, white, candidates(ctx.kin, CANDIDATE_NAMES), base.compliance)
 
 
 def measured_separation(ctx, white, pool, rivals: dict) -> dict:
-    """The rivals refitted to the data: chi^2, BIC, the best and the BIC gap to the next one."""
+    """The rivals refitted to the data: chi^2, BIC (``chi^2 + rank ln(6 T)``, as ``diagnose``
+    charges it), the best and the BIC gap to the next one."""
     hyps = disc.fit_hypotheses(ctx, white, rivals["base_terms"], rivals["rivals"], pool)
     n_obs = 6 * ctx.n_tests
-    bic = {h.label: float(h.chi2 + len(h.x) * np.log(n_obs)) for h in hyps}
+    bic = {h.label: float(h.chi2 + h.rank * np.log(n_obs)) for h in hyps}
     order = sorted(bic, key=bic.get)
     return {"chi2": {h.label: h.chi2 for h in hyps}, "bic": bic, "best": order[0],
             "delta_bic": bic[order[1]] - bic[order[0]] if len(order) > 1 else None}  # fmt: skip

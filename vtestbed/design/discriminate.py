@@ -73,6 +73,7 @@ class Hypothesis:
     compliance: np.ndarray  # (n,) rad/(N*m)
     x: np.ndarray  # (n + p,) compliances then the terms' parameters (SI)
     chi2: float
+    rank: int = 0  # independent columns of the fit: the parameters its BIC charges, as diagnose's
 
     def columns(self, ctx: ModelContext) -> np.ndarray:
         """(6 T, n + p) the model's columns on ``ctx``'s tests, bilinear terms at its compliances."""
@@ -94,7 +95,7 @@ def fit_hypotheses(ctx, white: Whitener, base_terms, rivals, pool) -> list[Hypot
             raise UnknownNameError("rival model", label, [BASELINE, *by_label])
         terms = [by_label[t] for t in base_terms] + ([] if label == BASELINE else [by_label[label]])
         fit = fit_model(ctx, white, terms)
-        out.append(Hypothesis(label, tuple(terms), fit.compliance, fit.x, fit.chi2))
+        out.append(Hypothesis(label, tuple(terms), fit.compliance, fit.x, fit.chi2, fit.rank))
     return out
 
 
@@ -286,6 +287,8 @@ def choose(blocks: list[PairBlocks], k: int, criterion: str = "T", max_passes: i
             rest = chosen[:pos] + chosen[pos + 1 :]
             sc = scores(rest)
             sc[chosen[pos]] = -np.inf
+            if not np.isfinite(sc.max()):  # every allowed test is in the set: nothing to swap in
+                continue
             best = int(np.argmax(sc))
             value = min(st.t_value([*rest, best]) for st in live)
             if value > current * (1 + 1e-9):
