@@ -63,7 +63,7 @@ def floor_whiteners(nu: int) -> np.ndarray:
 def _per_test(g: np.ndarray, x: np.ndarray) -> np.ndarray:
     """(D, 6T, k): each draw's 6x6 ``g[d]`` applied to every test's 6 rows of ``x`` (6T, k)."""
     blocks = x.reshape(-1, 6, x.shape[-1])
-    return np.einsum("dij,tjk->dtik", g, blocks).reshape(len(g), *x.shape)
+    return np.matmul(g[:, None], blocks[None]).reshape(len(g), *x.shape)
 
 
 def _basis(y: np.ndarray, rank: int | None = None) -> np.ndarray:
@@ -109,10 +109,11 @@ def lr_p_value(lr: float, design: np.ndarray, tested: np.ndarray, df: int, nu: i
     base = _basis(y[..., ~tested])
     rest = y[..., tested]
     if base.shape[-1]:
-        rest = rest - base @ np.einsum("dnr,dnk->drk", base, rest)
+        rest = rest - base @ (np.swapaxes(base, 1, 2) @ rest)
     q = _basis(rest, min(int(df), rest.shape[-1]))
-    h = np.einsum("dji,dtjr->dtir", g, q.reshape(len(g), -1, 6, q.shape[-1]))  # G*^T Q per test
-    c = np.einsum("dtir,dtis->drs", h, h)
+    h = np.matmul(np.swapaxes(g, 1, 2)[:, None], q.reshape(len(g), -1, 6, q.shape[-1]))  # G*^T Q per test
+    h = h.reshape(q.shape)
+    c = np.swapaxes(h, 1, 2) @ h
     return _tail(lr, np.trace(c, axis1=1, axis2=2), np.sum(c**2, axis=(1, 2)))
 
 
@@ -122,12 +123,12 @@ def fit_p_value(chi2: float, design: np.ndarray, nu: int) -> float:
     g = floor_whiteners(int(nu))
     y = _per_test(g, np.asarray(design, float))
     qa = _basis(y)
-    m = np.einsum("dij,dkj->dik", g, g)  # G* G*^T per test (the same 6x6 for every test)
+    m = g @ np.swapaxes(g, 1, 2)  # G* G*^T per test (the same 6x6 for every test)
     n_tests = y.shape[1] // 6
     tr_m = n_tests * np.trace(m, axis1=1, axis2=2)
     tr_m2 = n_tests * np.sum(m * np.swapaxes(m, 1, 2), axis=(1, 2))
-    mq = np.einsum("dij,dtjr->dtir", m, qa.reshape(len(g), n_tests, 6, -1)).reshape(qa.shape)
-    qmq = np.einsum("dnr,dns->drs", qa, mq)
+    mq = np.matmul(m[:, None], qa.reshape(len(g), n_tests, 6, -1)).reshape(qa.shape)
+    qmq = np.swapaxes(qa, 1, 2) @ mq
     s1 = tr_m - np.trace(qmq, axis1=1, axis2=2)
     s2 = tr_m2 - 2 * np.sum(mq * mq, axis=(1, 2)) + np.sum(qmq**2, axis=(1, 2))
     return _tail(chi2, s1, s2)
