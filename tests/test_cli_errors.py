@@ -65,6 +65,24 @@ def test_bad_option_values_give_one_line_and_exit_2(tmp_path, capsys, argv, mess
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "ragged.json"]  # nothing written
 
 
+@pytest.mark.parametrize(
+    "argv, message",
+    [  # two ways of saying one thing: one would silently win, so both together are refused
+        (["load", "--q-deg", "0,-60,-20,30,50,45", "--controller-deg", "0,-60,-20,30,50,45"],
+         "vtestbed load: error: argument --controller-deg: not allowed with argument --q-deg"),
+        (["scan", "--out", "{tmp}/s", "--controller-deg", "0,-60,-20,30,50,45", "--q-deg=-10,-60,-20,30,50,45"],
+         "vtestbed scan: error: argument --q-deg: not allowed with argument --controller-deg"),
+        (["poses", "criterion", "--q-deg", "0,-60,-20,30,50,45", "--controller-deg", "0,-60,-20,30,50,45"],
+         "vtestbed poses criterion: error: argument --controller-deg: not allowed with argument --q-deg"),
+        (["dataset", "import", "{tmp}/manifest.toml", "--out", "{tmp}/ds", "--window", "0.5:1.5", "--window-length", "1"],
+         "vtestbed dataset import: error: argument --window-length: not allowed with argument --window"),
+    ],
+)  # fmt: skip
+def test_conflicting_options_are_refused(tmp_path, capsys, argv, message):
+    assert _refused([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys) == message
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
 def test_an_unreachable_or_malformed_scheduler_is_one_line(tmp_path, capsys):
     path = tmp_path / "quick.toml"
     path.write_text(QUICK)

@@ -197,8 +197,9 @@ def register(sub) -> None:
             help="joint 6 for the optimum (default 45)",
         )
         if pose:
-            p.add_argument("--q-deg", help=f"DH joint angles in degrees ({NEGATIVE_HINT})")
-            p.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees")
+            angles = p.add_mutually_exclusive_group()  # one pose: two would silently drop one
+            angles.add_argument("--q-deg", help=f"DH joint angles in degrees ({NEGATIVE_HINT})")
+            angles.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees")
         if out:
             p.add_argument("--out", type=output_dir, help="directory for JSON and PNG files")
 
