@@ -83,6 +83,27 @@ def test_conflicting_options_are_refused(tmp_path, capsys, argv, message):
     assert list(tmp_path.iterdir()) == []  # nothing written
 
 
+def test_poses_design_names_the_poses_file_the_pose_and_gives_a_hint_only_where_it_helps(tmp_path, capsys):
+    design = ["poses", "design", "--stiffness-prior", "paper_table5", "--no-bound", "--tests", "1"]
+    limits = tmp_path / "limits.json"  # pose 1: joint 5 past the KR60's +-119 deg (datasheet)
+    limits.write_text(json.dumps({"q_deg": [[0, -60, -20, 30, 50, 45], [0, -60, -20, 30, 130, 45]]}))
+    assert _refused([*design, "--poses", str(limits)], capsys) == (
+        f"vtestbed: error: {limits}: q_deg[1]: joint5 = 130.000 deg (DH; controller A5 = 130.000 deg)"
+        " is outside its limits [-119.0, 119.0] deg (DH)"
+    )
+    assert _refused([*design, "--hooks", "hook_x,hook_z"], capsys) == (
+        "vtestbed: error: unknown --hooks hook 'hook_z'; valid names: hook_edge, hook_x, hook_y"
+    )
+    assert _refused([*design, "--anchors", "ring_99"], capsys).startswith(
+        "vtestbed: error: unknown --anchors anchor 'ring_99'; valid names: ring_1, ring_2,"
+    )
+    singular = tmp_path / "singular.json"  # theta5 = 0: refused from the pool, so no test is left
+    singular.write_text(json.dumps({"q_deg": [[0, -60, -20, 30, 0, 45]]}))
+    line = _refused([*design, "--poses", str(singular)], capsys)
+    assert line.startswith("vtestbed: error: no feasible test among 1 poses")
+    assert line.endswith("(robot 'kuka_kr60_3'; try other poses, --hooks/--anchors, or --no-clearance)")
+
+
 def test_an_unreachable_or_malformed_scheduler_is_one_line(tmp_path, capsys):
     path = tmp_path / "quick.toml"
     path.write_text(QUICK)

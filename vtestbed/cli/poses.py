@@ -63,6 +63,8 @@ def _read_poses(path: str, robot) -> np.ndarray:
             f"{path}: q_deg must be a non-empty list of poses, each {robot.dof} finite DH angles in degrees, "
             f"got {str(rows)[:80]}"
         )
+    for i, row in enumerate(np.radians(q)):  # name the file and the pose, not a bare "pose"
+        robot.check_pose(row, field=f"{path}: q_deg[{i}]")
     return np.radians(q)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from ..design import minimax, regions
 from ..design import optimal as design
 from ..design.clearance import NominalClearance
-from ..design.pool import candidate_pool, kappa_selection, random_poses
+from ..design.pool import NoFeasibleTestError, candidate_pool, kappa_selection, random_poses
 from ..design.priors import NAMED_PRIORS, stiffness_prior
 from ..design.sequential import next_tests, noise_from_residuals
 from ..errors import UnknownNameError, VtestbedError
@@ -35,6 +35,17 @@ def _prior(text: str, dof: int) -> np.ndarray:
     )
 
 
+def _names(text: str | None, option: str, kind: str, valid) -> list[str] | None:
+    """The comma-separated names of ``option`` (None: all), each one of ``valid``."""
+    if not text:
+        return None
+    names = text.split(",")
+    for name in names:
+        if name not in valid:
+            raise UnknownNameError(f"{option} {kind}", name, valid)
+    return names
+
+
 def _cmd_design(args) -> int:
     robot = load_robot(args.robot)
     lab = lab_for_robot(robot)  # the paper's lab scaled to the robot (PAPER_LAB for the KR60-3)
@@ -50,8 +61,8 @@ def _cmd_design(args) -> int:
         q = _regions_and_poses(robot, args)[2].q
     else:
         q = random_poses(robot, lab, n_poses, np.random.default_rng(args.seed))
-    hooks = args.hooks.split(",") if args.hooks else None
-    anchors = args.anchors.split(",") if args.anchors else None
+    hooks = _names(args.hooks, "--hooks", "hook", lab.block.hooks)
+    anchors = _names(args.anchors, "--anchors", "anchor", lab.table.anchors)
     nominal = False if args.no_clearance else NominalClearance(robot, lab, lab.scanner_distance)
     prior = _prior(args.stiffness_prior, robot.dof)
     data = {"criterion": args.criterion, "pool": pool_kind, "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
@@ -66,7 +77,7 @@ def _cmd_design(args) -> int:
         try:
             cands = candidate_pool(robot, lab, poses=q, max_tension=args.tension, levels=args.tension_levels,
                                    hooks=hooks, anchors=anchors, clearance=nominal)  # fmt: skip
-        except VtestbedError as exc:  # say why rather than fail later on an empty design
+        except NoFeasibleTestError as exc:  # the only refusal that other poses or options can cure
             raise VtestbedError(f"{exc} (robot {robot.name!r}; try other poses, --hooks/--anchors, "
                                 "or --no-clearance)") from None  # fmt: skip
         result = minimax.design(cands.a, args.tests, prior, args.criterion, args.sigma_p, args.sigma_r,
