@@ -104,6 +104,31 @@ def test_poses_design_names_the_poses_file_the_pose_and_gives_a_hint_only_where_
     assert line.endswith("(robot 'kuka_kr60_3'; try other poses, --hooks/--anchors, or --no-clearance)")
 
 
+@pytest.mark.parametrize(
+    "argv, message",
+    [  # plain numbers and the option's name, not numpy reprs and internal names
+        (["poses", "regions", "--out", "{tmp}/r", "--box", "1,1,1,0,0,0"],
+         "vtestbed: error: --box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max, got '1,1,1,0,0,0'"),
+        (["poses", "regions", "--out", "{tmp}/r", "--box", "0,0,0,1,-1,1"],
+         "vtestbed: error: --box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max, got '0,0,0,1,-1,1'"),
+        (["scan", "--out", "{tmp}/s", "--view", "0,0,0"],
+         "vtestbed: error: --view must be a non-zero direction in the block frame, got '0,0,0'"),
+    ],
+)  # fmt: skip
+def test_inverted_box_and_zero_view_name_the_option(tmp_path, capsys, argv, message):
+    assert _refused([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys) == message
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_library_range_messages_print_plain_numbers():
+    from vtestbed.design.regions import PoseConstraints
+    from vtestbed.errors import OutOfRangeError
+
+    with pytest.raises(OutOfRangeError) as exc:
+        PoseConstraints(box_min=(np.float64(1.0), 1.0, 1.0), box_max=(0.0, 0.0, np.float64(0.0)))
+    assert str(exc.value) == "box_min [1.0, 1.0, 1.0] must be below box_max [0.0, 0.0, 0.0] on every axis [m]"
+
+
 def test_an_unreachable_or_malformed_scheduler_is_one_line(tmp_path, capsys):
     path = tmp_path / "quick.toml"
     path.write_text(QUICK)

@@ -75,6 +75,11 @@ def _constraints(args, robot) -> regions.PoseConstraints:
         box = zone.box
     else:
         box = parse_numbers(args.box, "--box", 6, "m") if args.box else None
+        if box is not None and not np.all(box[:3] < box[3:]):
+            raise OutOfRangeError(
+                f"--box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max,"
+                f" got {args.box!r}"
+            )
     min_height = zone.min_height if args.min_height is None else args.min_height
     return regions.PoseConstraints(
         point="block", min_height=min_height, box_min=None if box is None else tuple(box[:3]),
