@@ -65,6 +65,70 @@ def test_bad_option_values_give_one_line_and_exit_2(tmp_path, capsys, argv, mess
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "ragged.json"]  # nothing written
 
 
+@pytest.mark.parametrize(
+    "argv, message",
+    [  # two ways of saying one thing: one would silently win, so both together are refused
+        (["load", "--q-deg", "0,-60,-20,30,50,45", "--controller-deg", "0,-60,-20,30,50,45"],
+         "vtestbed load: error: argument --controller-deg: not allowed with argument --q-deg"),
+        (["scan", "--out", "{tmp}/s", "--controller-deg", "0,-60,-20,30,50,45", "--q-deg=-10,-60,-20,30,50,45"],
+         "vtestbed scan: error: argument --q-deg: not allowed with argument --controller-deg"),
+        (["poses", "criterion", "--q-deg", "0,-60,-20,30,50,45", "--controller-deg", "0,-60,-20,30,50,45"],
+         "vtestbed poses criterion: error: argument --controller-deg: not allowed with argument --q-deg"),
+        (["dataset", "import", "{tmp}/manifest.toml", "--out", "{tmp}/ds", "--window", "0.5:1.5", "--window-length", "1"],
+         "vtestbed dataset import: error: argument --window-length: not allowed with argument --window"),
+    ],
+)  # fmt: skip
+def test_conflicting_options_are_refused(tmp_path, capsys, argv, message):
+    assert _refused([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys) == message
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_poses_design_names_the_poses_file_the_pose_and_gives_a_hint_only_where_it_helps(tmp_path, capsys):
+    design = ["poses", "design", "--stiffness-prior", "paper_table5", "--no-bound", "--tests", "1"]
+    limits = tmp_path / "limits.json"  # pose 1: joint 5 past the KR60's +-119 deg (datasheet)
+    limits.write_text(json.dumps({"q_deg": [[0, -60, -20, 30, 50, 45], [0, -60, -20, 30, 130, 45]]}))
+    assert _refused([*design, "--poses", str(limits)], capsys) == (
+        f"vtestbed: error: {limits}: q_deg[1]: joint5 = 130.000 deg (DH; controller A5 = 130.000 deg)"
+        " is outside its limits [-119.0, 119.0] deg (DH)"
+    )
+    assert _refused([*design, "--hooks", "hook_x,hook_z"], capsys) == (
+        "vtestbed: error: unknown --hooks hook 'hook_z'; valid names: hook_edge, hook_x, hook_y"
+    )
+    assert _refused([*design, "--anchors", "ring_99"], capsys).startswith(
+        "vtestbed: error: unknown --anchors anchor 'ring_99'; valid names: ring_1, ring_2,"
+    )
+    singular = tmp_path / "singular.json"  # theta5 = 0: refused from the pool, so no test is left
+    singular.write_text(json.dumps({"q_deg": [[0, -60, -20, 30, 0, 45]]}))
+    line = _refused([*design, "--poses", str(singular)], capsys)
+    assert line.startswith("vtestbed: error: no feasible test among 1 poses")
+    assert line.endswith("(robot 'kuka_kr60_3'; try other poses, --hooks/--anchors, or --no-clearance)")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [  # plain numbers and the option's name, not numpy reprs and internal names
+        (["poses", "regions", "--out", "{tmp}/r", "--box", "1,1,1,0,0,0"],
+         "vtestbed: error: --box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max, got '1,1,1,0,0,0'"),
+        (["poses", "regions", "--out", "{tmp}/r", "--box", "0,0,0,1,-1,1"],
+         "vtestbed: error: --box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max, got '0,0,0,1,-1,1'"),
+        (["scan", "--out", "{tmp}/s", "--view", "0,0,0"],
+         "vtestbed: error: --view must be a non-zero direction in the block frame, got '0,0,0'"),
+    ],
+)  # fmt: skip
+def test_inverted_box_and_zero_view_name_the_option(tmp_path, capsys, argv, message):
+    assert _refused([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys) == message
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_library_range_messages_print_plain_numbers():
+    from vtestbed.design.regions import PoseConstraints
+    from vtestbed.errors import OutOfRangeError
+
+    with pytest.raises(OutOfRangeError) as exc:
+        PoseConstraints(box_min=(np.float64(1.0), 1.0, 1.0), box_max=(0.0, 0.0, np.float64(0.0)))
+    assert str(exc.value) == "box_min [1.0, 1.0, 1.0] must be below box_max [0.0, 0.0, 0.0] on every axis [m]"
+
+
 def test_an_unreachable_or_malformed_scheduler_is_one_line(tmp_path, capsys):
     path = tmp_path / "quick.toml"
     path.write_text(QUICK)

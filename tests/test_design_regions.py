@@ -163,7 +163,8 @@ def test_bad_constraints_and_steps_are_refused(robot, optimum):
     with pytest.raises(regions.OutOfRangeError, match="box_min and box_max must be given together"):
         regions.PoseConstraints(box_min=(0, 0, 0))
     with pytest.raises(
-        regions.OutOfRangeError, match=r"box_min \(0, 2, 0\) must be below box_max \(1, 1, 1\)"
+        regions.OutOfRangeError,
+        match=r"box_min \[0, 2, 0\] must be below box_max \[1, 1, 1\] on every axis \[m\]",
     ):
         regions.PoseConstraints(box_min=(0, 2, 0), box_max=(1, 1, 1))
     with pytest.raises(

@@ -82,3 +82,44 @@ def test_cli_next_on_a_simulated_dataset(tmp_path, capsys):
     assert nxt.name == "next_minimax_3" and nxt.n_tests == 3
     assert main(["poses", "next", str(tmp_path / "none")]) == 2
     assert "none" in capsys.readouterr().err
+
+
+def test_cli_next_on_a_one_test_dataset_says_why_and_what_to_do(tmp_path, capsys):
+    from vtestbed.cli.main import main
+    from vtestbed.experiment import simulate
+    from vtestbed.scenario import parse_scenario
+
+    root = tmp_path / "one"
+    simulate(parse_scenario(paper_scenario_data(1, 1, "one", 3), "one.toml"), root)
+    assert main(["poses", "next", str(root), "--tests", "2", "--n", "15"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (
+        f"vtestbed: error: {root}: 1 identification test(s) leave no residual to estimate the measurement"
+        " noise from (one test gives 6 equations for the 6 stiffnesses; at least 2 noisy tests are"
+        " needed); add tests, or give the noise: --sigma-p M --sigma-r RAD"
+    )
+    # only one of the two given: the other would still come from the residuals, so still refused
+    assert main(["poses", "next", str(root), "--n", "15", "--sigma-p", "5e-6"]) == 2
+    assert "--sigma-p M --sigma-r RAD" in capsys.readouterr().err
+    # the remedy works: both given, the design runs on the one test's estimate
+    assert (
+        main(
+            [
+                "poses",
+                "next",
+                str(root),
+                "--tests",
+                "2",
+                "--n",
+                "15",
+                "--sigma-p",
+                "5e-6",
+                "--sigma-r",
+                "9e-6",
+            ]
+        )
+        == 0
+    )
+    out = json.loads(capsys.readouterr().out)
+    assert out["tests_made"] == 1 and len(out["tests"]) == 2
+    assert (out["sigma_p_m"], out["sigma_r_rad"]) == (5e-6, 9e-6)

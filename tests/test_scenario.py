@@ -97,6 +97,25 @@ def test_unknown_scanner_noise_parameter_lists_the_valid_ones(paper_data):
         parse_scenario(data, "test.toml")
 
 
+@pytest.mark.parametrize(
+    "key, value, message",
+    [  # each parameter's own range, as the scanner's datasheet-based model states it (scan_noise.py)
+        ("range_std_m", -0.1, r"range_std_m: = -0.1 m is outside the valid range \[0, 0.001\] m$"),
+        ("outlier_fraction", float("nan"), r"outlier_fraction: = nan is outside the valid range \[0, 0.5\]$"),
+        (
+            "drift_rotation_std_rad",
+            80.0,
+            r"drift_rotation_std_rad: = 80 rad is outside the valid range \[0, 0.01\] rad$",
+        ),
+        ("grazing_exponent", "x", r"grazing_exponent: must be a number in \[0, 4\], got 'x'$"),
+    ],
+)
+def test_scanner_noise_parameters_state_their_own_range(paper_data, key, value, message):
+    data = _broken(paper_data, ("scanner", "noise_params"), {key: value})
+    with pytest.raises(ScenarioError, match=rf"^test.toml: scanner.noise_params.{message}"):
+        parse_scenario(data, "test.toml")
+
+
 def test_file_level_errors(tmp_path):
     with pytest.raises(ScenarioError, match="does not exist"):
         load_scenario(tmp_path / "nope.toml")

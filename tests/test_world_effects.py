@@ -335,6 +335,62 @@ def test_bad_effects_are_named(effect, message):
         parse_scenario(_small_scenario([effect]), "s.toml")
 
 
+@pytest.mark.parametrize(
+    "effects, message",
+    [
+        (
+            [{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 2}],
+            r"s.toml: world.effects\[1\]: repeats world.effects\[0\] \(link_compliance on link = 2\):"
+            r" an effect may be listed once per link; give one entry with the combined size, or another link$",
+        ),
+        (  # the default link is 2: an omitted target is the same target
+            [
+                {"name": "link_compliance"},
+                {"name": "ft_misalignment"},
+                {"name": "link_compliance", "link": 2},
+            ],
+            r"world.effects\[2\]: repeats world.effects\[0\] \(link_compliance on link = 2\)",
+        ),
+        (  # a pair in either order is one pair
+            [{"name": "joint_coupling", "joints": [5, 6]}, {"name": "joint_coupling", "joints": [6, 5]}],
+            r"world.effects\[1\]: repeats world.effects\[0\] \(joint_coupling on joints = \[5, 6\]\):"
+            r" an effect may be listed once per joint pair",
+        ),
+        (
+            [{"name": "scanner_scale"}, {"name": "scanner_scale", "scale_ppm": 5.0}],
+            r"world.effects\[1\]: repeats world.effects\[0\] \(scanner_scale\): an effect may be listed"
+            r" once \(it has no target\); give one entry with the combined size$",
+        ),
+    ],
+)
+def test_an_effect_listed_twice_on_one_target_is_refused_naming_both(effects, message):
+    with pytest.raises(ScenarioError, match=message):
+        parse_scenario(_small_scenario(effects), "s.toml")
+
+
+def test_one_effect_on_two_targets_is_accepted():
+    scenario = parse_scenario(
+        _small_scenario([{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 3}]),
+        "s.toml",
+    )
+    assert [e.link for e in scenario.effects] == [2, 3]
+
+
+def test_an_effect_listed_twice_exits_2_from_effects_size(tmp_path, capsys):
+    path = tmp_path / "dup.toml"
+    path.write_text(
+        'name = "dup"\n[poses]\nangles_deg = [[0, -60, -20, 30, 50, 45]]\n'
+        '[[world.effects]]\nname = "link_compliance"\nlink = 2\n'
+        '[[world.effects]]\nname = "link_compliance"\nlink = 2\n'
+    )
+    assert cli.main(["effects", "size", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"vtestbed: error: {path}: world.effects[1]: repeats world.effects[0] (link_compliance on link = 2):"
+        " an effect may be listed once per link; give one entry with the combined size, or another link"
+    ]
+
+
 def test_an_impossible_magnitude_is_refused_with_its_field_and_exit_code_2(robot, tmp_path, capsys):
     too_strong = JointCoupling(joints=(5, 6), stiffness_Nm_per_rad=30000.0)  # > sqrt(k5 k6) = 22510
     with pytest.raises(OutOfRangeError, match=r"world.effects\[0\] \(joint_coupling\).stiffness_Nm_per_rad"):

@@ -32,6 +32,7 @@ import numpy as np
 from . import robot_files
 from .errors import DescriptionError
 from .files import write_text_atomic
+from .robots import inertia_problem
 from .transforms import invert, modified_dh
 from .urdf import Urdf, UrdfJoint, chain_pose, check_chain, default_tip
 
@@ -230,6 +231,13 @@ def import_urdf(urdf: Urdf, name: str, base: str | None = None, tip: str | None 
         if mass <= 0.0:
             raise DescriptionError(
                 f"{urdf.path}: the links moved by joint {movable[k - 1].name!r} have no mass; MuJoCo needs > 0 kg"
+            )
+    for k, (_, _, inertia) in enumerate(bodies[1:], start=1):  # what MuJoCo would refuse, said first
+        problem = inertia_problem(inertia)
+        if problem:
+            raise DescriptionError(
+                f"{urdf.path}: the links moved by joint {movable[k - 1].name!r}, lumped, have an inertia"
+                f" that {problem}; MuJoCo needs a physical inertia for every moving body"
             )
     k_true, k_note = _stiffness(movable, stiffness, urdf.path)
     locked = sorted({j.name for path in below.values() for j in path if j.movable and j.name not in names})

@@ -198,7 +198,8 @@ class RobotDescription:
 
 def available_robots() -> list[str]:
     """Names of the robots under :data:`MODELS_DIR` (folders holding a robot.toml)."""
-    return sorted(p.parent.name for p in MODELS_DIR.glob("*/robot.toml"))
+    # a dot folder is an import in progress (robot_import.install), and robot_dir refuses the name
+    return sorted(p.parent.name for p in MODELS_DIR.glob("*/robot.toml") if not p.parent.name.startswith("."))
 
 
 def robot_dir(name: str) -> Path:
@@ -217,19 +218,69 @@ _FIELDS = (
 ).split()
 
 
+def inertia_problem(inertia) -> str | None:
+    """Why a (3, 3) inertia about the com [kg*m^2] is not one MuJoCo accepts for a moving body,
+    or None. Its principal moments must be positive (MuJoCo: above mjMINVAL) and each at most the
+    sum of the other two (the triangle inequality every real mass distribution satisfies)."""
+    matrix = np.asarray(inertia, dtype=float)
+    if not np.all(np.isfinite(matrix)):
+        return "must be finite"
+    moments = np.linalg.eigvalsh((matrix + matrix.T) / 2)
+    shown = "[" + ", ".join(f"{m:.4g}" for m in moments) + "] kg*m^2"
+    if not moments[0] > 1e-15:  # MuJoCo's mjMINVAL
+        return f"has principal moments {shown}; all must be > 0"
+    if moments[2] > (moments[0] + moments[1]) * (1 + 1e-9):  # 1e-9: a thin rod's round-off
+        return f"has principal moments {shown}; the largest must not exceed the sum of the other two"
+    return None
+
+
+def _finite_numbers(table: dict, field: str, count: int, where: str) -> list[float]:
+    """``table[field]``: one finite number (``count`` 1) or a list of ``count``, or an error naming it."""
+    value = table.get(field, [0.0] * count if field == "inertia_offdiag_kgm2" else None)
+    items = [value] if count == 1 else value
+    if (
+        not isinstance(items, list | tuple)
+        or len(items) != count
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in items)
+    ):
+        what = "a finite number" if count == 1 else f"{count} finite numbers"
+        raise DescriptionError(f"{where}.{field} must be {what}, got {value!r}")
+    return [float(v) for v in items]
+
+
 def _joint_from_table(table: dict, index: int, source: Path) -> JointDescription:
     missing = [f for f in _FIELDS if f not in table]
     if missing:
         raise DescriptionError(f"{source}: joints[{index}] lacks {', '.join(missing)}")
+    where = f"{source}: joints[{index}]"
     sign = float(table["controller_sign"])
     if sign not in (1.0, -1.0):
-        raise DescriptionError(f"{source}: joints[{index}].controller_sign must be 1 or -1, got {sign}")
+        raise DescriptionError(f"{where}.controller_sign must be 1 or -1, got {sign}")
+    # what MuJoCo and the kinematics need of a hand-edited file: finite numbers, a positive mass, a
+    # physical inertia, a limit range with lower < upper (a NaN limit would let every pose through)
+    for field in ("alpha_prev_deg", "a_prev_m", "d_m", "controller_offset_deg"):
+        _finite_numbers(table, field, 1, where)
     for field in ("com_m", "inertia_diag_kgm2", "inertia_offdiag_kgm2"):
-        value = table.get(field, (0.0, 0.0, 0.0))
-        if not isinstance(value, list | tuple) or len(value) != 3:
-            raise DescriptionError(f"{source}: joints[{index}].{field} must be 3 numbers, got {value!r}")
+        _finite_numbers(table, field, 3, where)
+    low, high = _finite_numbers(table, "controller_limits_deg", 2, where)
+    if not low < high:
+        raise DescriptionError(
+            f"{where}.controller_limits_deg must be [lower, upper] deg with lower < upper, got {[low, high]}"
+        )
+    (mass,) = _finite_numbers(table, "mass_kg", 1, where)
+    if not mass > 0:
+        raise DescriptionError(
+            f"{where}.mass_kg must be a finite number > 0 kg (a moving link), got {mass!r}"
+        )
+    (ixx, iyy, izz), (ixy, ixz, iyz) = (
+        table["inertia_diag_kgm2"],
+        table.get("inertia_offdiag_kgm2", (0, 0, 0)),
+    )
+    problem = inertia_problem([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    if problem:
+        raise DescriptionError(f"{where}: the inertia (inertia_diag_kgm2, inertia_offdiag_kgm2) {problem}")
     offset = np.radians(table["controller_offset_deg"])
-    lim = np.radians(table["controller_limits_deg"])
+    lim = np.radians([low, high])
     dh_lim = sorted(sign * lim + offset)
     return JointDescription(
         name=table["name"],
@@ -289,7 +340,12 @@ def load_robot(name: str = DEFAULT_ROBOT) -> RobotDescription:
 
     Unknown names list the available robots.
     """
-    source = robot_dir(name) / "robot.toml"
+    return robot_from_file(robot_dir(name) / "robot.toml")
+
+
+def robot_from_file(source: Path) -> RobotDescription:
+    """Read and check a ``robot.toml`` at any path (``robot import`` checks its new file before
+    installing it); errors name the file and the field."""
     data = read_toml(source, "robot description", DescriptionError)
     tables = data.get("joints", [])
     if not isinstance(tables, list) or not tables or not all(isinstance(t, dict) for t in tables):
@@ -300,10 +356,13 @@ def load_robot(name: str = DEFAULT_ROBOT) -> RobotDescription:
         if isinstance(exc, DescriptionError):
             raise
         raise DescriptionError(f"{source}: malformed joint table: {exc}") from None
+    base_mass = data.get("base_mass_kg", 0.0)
+    if isinstance(base_mass, bool) or not isinstance(base_mass, int | float) or not 0 <= base_mass < np.inf:
+        raise DescriptionError(f"{source}: base_mass_kg must be a finite number >= 0 kg, got {base_mass!r}")
     return RobotDescription(
         name=data["name"],
         display_name=data.get("display_name", data["name"]),
-        base_mass=float(data.get("base_mass_kg", 0.0)),
+        base_mass=float(base_mass),
         joints=joints,
         source=source,
         dh0_in_base=_rigid_transform(data, "dh0_in_base", source),

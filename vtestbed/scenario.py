@@ -25,7 +25,7 @@ from .lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, parse_lab
 from .robots import DEFAULT_ROBOT, RobotDescription, load_robot
 from .schema import Fields
 from .world.effects import parse_effects
-from .world.scan_noise import ScanNoise
+from .world.scan_noise import NOISE_PARAM_RANGES, ScanNoise
 from .world.sensors import DEFAULT_NOISE_STD, NO_BIAS
 
 CONVENTIONS = ("dh", "controller")
@@ -192,8 +192,8 @@ def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
     params = f.table(
         table.get("noise_params", {}), "scanner.noise_params", tuple(ScanNoise.__dataclass_fields__)
     )
-    for key, value in params.items():
-        f.number(value, f"scanner.noise_params.{key}", 0.0, 90.0)
+    for key, value in params.items():  # each parameter's own range (stated once, in scan_noise)
+        f.number(value, f"scanner.noise_params.{key}", *NOISE_PARAM_RANGES[key])
     try:
         model = ScanNoise(**params)
     except OutOfRangeError as exc:

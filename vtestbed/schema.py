@@ -34,12 +34,13 @@ class Fields:
                 raise self.error(f"{prefix}{unknown[0]}", f"unknown key; valid keys: {', '.join(allowed)}")
         return value
 
-    def number(self, value, field_name: str, low: float, high: float) -> float:
-        """A finite number in ``[low, high]``."""
+    def number(self, value, field_name: str, low: float, high: float, unit: str = "") -> float:
+        """A finite number in ``[low, high]`` (``unit``, if given, follows the range in errors)."""
+        u = f" {unit}" if unit else ""
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(field_name, f"must be a number in [{low:g}, {high:g}], got {value!r}")
+            raise self.error(field_name, f"must be a number in [{low:g}, {high:g}]{u}, got {value!r}")
         if not low <= value <= high:  # also refuses NaN
-            raise self.error(field_name, f"= {value:g} is outside the valid range [{low:g}, {high:g}]")
+            raise self.error(field_name, f"= {value:g}{u} is outside the valid range [{low:g}, {high:g}]{u}")
         return float(value)
 
     def integer(self, value, field_name: str, low: int, high: int) -> int:

@@ -143,6 +143,17 @@ def _inertial(link, where: str) -> UrdfInertial | None:
         float(_floats(tensor, n, 1, None, f"{where} <inertial><inertia>")[0]) for n in names
     )
     inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    # a real body's principal moments are >= 0, each at most the sum of the other two; a zero
+    # tensor (a point mass, a massless frame) is allowed here: the lumped links are checked again
+    moments = np.linalg.eigvalsh(inertia)
+    tol = 1e-9 * max(abs(moments).max(), 1e-12)  # round-off of the file's digits
+    if moments[0] < -tol or moments[2] > moments[0] + moments[1] + tol:
+        shown = ", ".join(f"{m:.4g}" for m in moments)
+        raise DescriptionError(
+            f"{where} <inertial><inertia>: ixx={ixx:g} ixy={ixy:g} ixz={ixz:g} iyy={iyy:g} iyz={iyz:g}"
+            f" izz={izz:g} is not a physical inertia: principal moments [{shown}] kg*m^2 must be >= 0"
+            " and each at most the sum of the other two"
+        )
     return UrdfInertial(mass, _origin(elem.find("origin"), f"{where} <inertial><origin>"), inertia)
 
 

@@ -48,14 +48,16 @@ NEGATIVE_HINT = "negative first value: --q-deg=-10,20,... or --q-deg -10,20,..."
 
 
 def add_pose_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    # one pose, in one convention: given both, one would silently win over the other
+    angles = parser.add_mutually_exclusive_group()
+    angles.add_argument(
         "--q-deg",
         default=DEFAULT_POSE_DEG,
         help=f"DH joint angles in degrees (default %(default)s; {NEGATIVE_HINT})",
     )
-    parser.add_argument(
+    angles.add_argument(
         "--controller-deg",
-        help="controller angles in degrees (KUKA A1..A6, an imported robot's URDF joint positions; overrides --q-deg)",
+        help="controller angles in degrees (KUKA A1..A6, an imported robot's URDF joint positions; instead of --q-deg)",
     )
 
 

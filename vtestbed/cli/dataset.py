@@ -62,11 +62,12 @@ def register(sub) -> None:
     imp.add_argument(
         "--torque-units", choices=("Nm", "Nmm"), help="unit of the streams' torque columns (default Nm)"
     )
-    imp.add_argument(
+    window = imp.add_mutually_exclusive_group()  # a given window, or the length of the quietest one
+    window.add_argument(
         "--window", type=window_option, metavar="START:END",
         help="static window of every stream in s (a test's window_<state>_s wins); default: the quietest window",
     )  # fmt: skip
-    imp.add_argument(
+    window.add_argument(
         "--window-length", type=number(0, 1e4, "s", low_open=True), metavar="S",
         help="length of the automatic (quietest) window in s (default 1.0, or the manifest's)",
     )  # fmt: skip

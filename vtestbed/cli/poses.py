@@ -63,6 +63,8 @@ def _read_poses(path: str, robot) -> np.ndarray:
             f"{path}: q_deg must be a non-empty list of poses, each {robot.dof} finite DH angles in degrees, "
             f"got {str(rows)[:80]}"
         )
+    for i, row in enumerate(np.radians(q)):  # name the file and the pose, not a bare "pose"
+        robot.check_pose(row, field=f"{path}: q_deg[{i}]")
     return np.radians(q)
 
 
@@ -73,6 +75,11 @@ def _constraints(args, robot) -> regions.PoseConstraints:
         box = zone.box
     else:
         box = parse_numbers(args.box, "--box", 6, "m") if args.box else None
+        if box is not None and not np.all(box[:3] < box[3:]):
+            raise OutOfRangeError(
+                f"--box must be x_min,y_min,z_min,x_max,y_max,z_max [m] with each min below its max,"
+                f" got {args.box!r}"
+            )
     min_height = zone.min_height if args.min_height is None else args.min_height
     return regions.PoseConstraints(
         point="block", min_height=min_height, box_min=None if box is None else tuple(box[:3]),
@@ -197,8 +204,9 @@ def register(sub) -> None:
             help="joint 6 for the optimum (default 45)",
         )
         if pose:
-            p.add_argument("--q-deg", help=f"DH joint angles in degrees ({NEGATIVE_HINT})")
-            p.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees")
+            angles = p.add_mutually_exclusive_group()  # one pose: two would silently drop one
+            angles.add_argument("--q-deg", help=f"DH joint angles in degrees ({NEGATIVE_HINT})")
+            angles.add_argument("--controller-deg", help="KUKA controller angles A1..A6 in degrees")
         if out:
             p.add_argument("--out", type=output_dir, help="directory for JSON and PNG files")
 

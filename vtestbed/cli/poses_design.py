@@ -12,10 +12,10 @@ import numpy as np
 from ..design import minimax, regions
 from ..design import optimal as design
 from ..design.clearance import NominalClearance
-from ..design.pool import candidate_pool, kappa_selection, random_poses
+from ..design.pool import NoFeasibleTestError, candidate_pool, kappa_selection, random_poses
 from ..design.priors import NAMED_PRIORS, stiffness_prior
 from ..design.sequential import next_tests, noise_from_residuals
-from ..errors import UnknownNameError, VtestbedError
+from ..errors import DatasetError, OutOfRangeError, UnknownNameError, VtestbedError
 from ..lab import lab_for_robot
 from ..robots import load_robot
 from .args import SEED, integer, number, output_dir, parse_numbers
@@ -35,6 +35,17 @@ def _prior(text: str, dof: int) -> np.ndarray:
     )
 
 
+def _names(text: str | None, option: str, kind: str, valid) -> list[str] | None:
+    """The comma-separated names of ``option`` (None: all), each one of ``valid``."""
+    if not text:
+        return None
+    names = text.split(",")
+    for name in names:
+        if name not in valid:
+            raise UnknownNameError(f"{option} {kind}", name, valid)
+    return names
+
+
 def _cmd_design(args) -> int:
     robot = load_robot(args.robot)
     lab = lab_for_robot(robot)  # the paper's lab scaled to the robot (PAPER_LAB for the KR60-3)
@@ -50,8 +61,8 @@ def _cmd_design(args) -> int:
         q = _regions_and_poses(robot, args)[2].q
     else:
         q = random_poses(robot, lab, n_poses, np.random.default_rng(args.seed))
-    hooks = args.hooks.split(",") if args.hooks else None
-    anchors = args.anchors.split(",") if args.anchors else None
+    hooks = _names(args.hooks, "--hooks", "hook", lab.block.hooks)
+    anchors = _names(args.anchors, "--anchors", "anchor", lab.table.anchors)
     nominal = False if args.no_clearance else NominalClearance(robot, lab, lab.scanner_distance)
     prior = _prior(args.stiffness_prior, robot.dof)
     data = {"criterion": args.criterion, "pool": pool_kind, "sigma_p_m": args.sigma_p, "sigma_r_rad": args.sigma_r,
@@ -66,7 +77,7 @@ def _cmd_design(args) -> int:
         try:
             cands = candidate_pool(robot, lab, poses=q, max_tension=args.tension, levels=args.tension_levels,
                                    hooks=hooks, anchors=anchors, clearance=nominal)  # fmt: skip
-        except VtestbedError as exc:  # say why rather than fail later on an empty design
+        except NoFeasibleTestError as exc:  # the only refusal that other poses or options can cure
             raise VtestbedError(f"{exc} (robot {robot.name!r}; try other poses, --hooks/--anchors, "
                                 "or --no-clearance)") from None  # fmt: skip
         result = minimax.design(cands.a, args.tests, prior, args.criterion, args.sigma_p, args.sigma_r,
@@ -102,8 +113,10 @@ def _cmd_next(args) -> int:
         lab.check_tension(args.tension, "--tension")
     made = [m for m in measurements if m.group == "identification"]
     jac, wrench, _ = stacked(made)
-    sigma_p, sigma_r = noise_from_residuals(result.component_std)
-    sigma_p, sigma_r = args.sigma_p or sigma_p, args.sigma_r or sigma_r
+    sigma_p, sigma_r = args.sigma_p, args.sigma_r
+    if sigma_p is None or sigma_r is None:  # what is not given comes from the residuals
+        residual_p, residual_r = _residual_noise(args.dataset, result, len(made))
+        sigma_p, sigma_r = sigma_p or residual_p, sigma_r or residual_r
     nominal = False if args.no_clearance else NominalClearance(robot, lab, lab.scanner_distance)
     cands = candidate_pool(robot, lab, args.n, np.random.default_rng(args.seed), max_tension=args.tension,
                            levels=args.tension_levels, clearance=nominal)  # fmt: skip
@@ -118,6 +131,22 @@ def _cmd_next(args) -> int:
         (Path(args.out) / "next_scenario.toml").write_text(header + name + design.scenario_toml(nxt.tests))
     _emit(args, data, "next.json")
     return 0
+
+
+def _residual_noise(dataset, result, n_tests: int) -> tuple[float, float]:
+    """(sigma_p [m], sigma_r [rad]) from the identification's residuals, or an error that says why
+    not and what to do. One test gives 6 equations for 6 unknowns: its residuals are round-off
+    (1e-19), not noise, so fewer than 2 tests are refused even when round-off happens to be > 0."""
+    try:
+        if n_tests >= 2:
+            return noise_from_residuals(result.component_std)
+    except OutOfRangeError:
+        pass
+    raise DatasetError(
+        f"{dataset}: {n_tests} identification test(s) leave no residual to estimate the measurement"
+        " noise from (one test gives 6 equations for the 6 stiffnesses; at least 2 noisy tests are"
+        " needed); add tests, or give the noise: --sigma-p M --sigma-r RAD"
+    )
 
 
 def _noise_args(p) -> None:

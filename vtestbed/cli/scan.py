@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import OutOfRangeError
 from ..files import dumps
 from ..lab import lab_for_robot
 from ..robots import DEFAULT_ROBOT
@@ -38,6 +39,9 @@ def _cmd_scan(args) -> int:
     lab = lab_for_robot(robot)  # the robot's own lab: table, rings, tension and stand-off fit it
     tension = load_tension(args, lab)
     distance_m = lab.scanner_distance if args.distance_mm is None else args.distance_mm * 1e-3
+    view = parse_numbers(args.view, "--view", 3, "direction in the block frame")
+    if not np.linalg.norm(view) > 0:  # checked before --out is created: a refusal writes nothing
+        raise OutOfRangeError(f"--view must be a non-zero direction in the block frame, got {args.view!r}")
     rig = Rig(robot, lab)
     q_cmd = pose_from_args(robot, args)
     rig.command(q_cmd)
@@ -52,7 +56,7 @@ def _cmd_scan(args) -> int:
         rig.lab,
         s0.block_pose,
         distance_m=distance_m,
-        view_direction_block=parse_numbers(args.view, "--view", 3, "direction in the block frame"),
+        view_direction_block=view,
         point_spacing_m=args.spacing_mm * 1e-3,
     )
     cloud0 = scanner.scan(rig.model, rig.data, rng, noise)

@@ -23,6 +23,11 @@ from .optimal import CandidateTest, candidate_tests, sensor_load
 from .regions import PoseConstraints
 
 
+class NoFeasibleTestError(VtestbedError):
+    """Every candidate test was refused (limits of the lab, the sensor or the clearance): the one
+    case where other poses, hooks, rings or dropping the clearance check can help."""
+
+
 def zone_constraints(lab: LabSetup) -> PoseConstraints:
     """The lab's block zone (lowest height, box) as pose constraints on the block origin."""
     box = lab.zone.box
@@ -207,7 +212,7 @@ def candidate_pool(
                   for t, o in zip(base, ok) if o]  # fmt: skip
         blocks.append(a_top[ok] * f)
     if not tests:
-        raise VtestbedError(
+        raise NoFeasibleTestError(
             f"no feasible test among {drawn} poses x hooks x rings x {len(tensions)} tensions "
             f"(refused: {refused}); draw more poses or relax the lab (docs/clearance.md)"
         )

@@ -212,7 +212,8 @@ class PoseConstraints:
             raise OutOfRangeError("box_min and box_max must be given together (3 numbers each, m)")
         if self.box_min is not None and not np.all(np.asarray(self.box_min) < np.asarray(self.box_max)):
             raise OutOfRangeError(
-                f"box_min {self.box_min} must be below box_max {self.box_max} on every axis"
+                f"box_min {np.asarray(self.box_min).tolist()} must be below box_max"
+                f" {np.asarray(self.box_max).tolist()} on every axis [m]"
             )
 
     def failures(self, robot: RobotDescription, q: np.ndarray) -> dict[str, np.ndarray]:

@@ -292,20 +292,23 @@ def build_scene_spec(
     return spec
 
 
-def model_files(robot: RobotDescription) -> dict[str, str]:
+def model_files(robot: RobotDescription, truth: RobotTruth | None = None) -> dict[str, str]:
     """The XML texts of ``<robot>.xml`` and ``scene.xml`` (the robot's default lab,
-    :func:`vtestbed.lab.lab_for_robot`: the paper's for the KR60-3) as the generator produces them."""
-    truth = load_truth(robot.name)
+    :func:`vtestbed.lab.lab_for_robot`: the paper's for the KR60-3) as the generator produces them
+    (``truth``: default the robot's ``truth.toml``)."""
+    truth = truth or load_truth(robot.name)
     robot_xml = build_robot_spec(robot, truth).to_xml()
     scene_xml = build_scene_spec(robot, truth, lab_for_robot(robot)).to_xml()
     return {f"{robot.name.removeprefix('kuka_')}.xml": robot_xml, "scene.xml": scene_xml}
 
 
-def write_model_files(robot: RobotDescription, directory: Path | None = None) -> list[Path]:
+def write_model_files(
+    robot: RobotDescription, directory: Path | None = None, truth: RobotTruth | None = None
+) -> list[Path]:
     """Regenerate the committed MJCF files of ``robot``; returns the written paths."""
     directory = directory or robot_dir(robot.name)
     written = []
-    for name, text in model_files(robot).items():
+    for name, text in model_files(robot, truth).items():
         path = Path(directory) / name
         path.write_text(text)
         written.append(path)

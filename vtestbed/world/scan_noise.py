@@ -55,6 +55,20 @@ class NoisyScan:
     drift: np.ndarray  # (4, 4) D: reported point = D @ true point
 
 
+# Each parameter's valid range and unit, stated once: ScanNoise checks them and a scenario's
+# [scanner.noise_params] names them in its errors. dropout_full_deg is also >= dropout_start_deg.
+NOISE_PARAM_RANGES: dict[str, tuple[float, float, str]] = {
+    "range_std_m": (0.0, 1e-3, "m"),
+    "grazing_exponent": (0.0, 4.0, ""),
+    "dropout_start_deg": (0.0, 90.0, "deg"),
+    "dropout_full_deg": (0.0, 90.0, "deg"),
+    "outlier_fraction": (0.0, 0.5, ""),
+    "outlier_range_m": (0.0, 0.1, "m"),
+    "drift_translation_std_m": (0.0, 1e-3, "m"),
+    "drift_rotation_std_rad": (0.0, 1e-2, "rad"),
+}
+
+
 @dataclass(frozen=True)
 class ScanNoise:
     """Measurement errors of the structured-light scanner. Defaults: VTOP 200B datasheet + assumptions.
@@ -93,14 +107,10 @@ class ScanNoise:
     drift_rotation_std_rad: float = 5e-6
 
     def __post_init__(self):
-        check_range("range_std_m", self.range_std_m, 0.0, 1e-3, "m")
-        check_range("grazing_exponent", self.grazing_exponent, 0.0, 4.0)
-        check_range("dropout_start_deg", self.dropout_start_deg, 0.0, 90.0, "deg")
+        for name, (low, high, unit) in NOISE_PARAM_RANGES.items():
+            check_range(name, getattr(self, name), low, high, unit)
+        # the one range that depends on another field: the dropout ramp must not run backwards
         check_range("dropout_full_deg", self.dropout_full_deg, self.dropout_start_deg, 90.0, "deg")
-        check_range("outlier_fraction", self.outlier_fraction, 0.0, 0.5)
-        check_range("outlier_range_m", self.outlier_range_m, 0.0, 0.1, "m")
-        check_range("drift_translation_std_m", self.drift_translation_std_m, 0.0, 1e-3, "m")
-        check_range("drift_rotation_std_rad", self.drift_rotation_std_rad, 0.0, 1e-2, "rad")
 
     @classmethod
     def perfect(cls) -> ScanNoise:

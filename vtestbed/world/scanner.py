@@ -213,7 +213,7 @@ class Scanner:
         view = np.asarray(view_direction_block, dtype=float)
         if view.shape != (3,) or not np.all(np.isfinite(view)) or np.linalg.norm(view) == 0:
             raise OutOfRangeError(
-                f"view_direction_block must be a non-zero 3-vector, got {view_direction_block!r}"
+                f"view_direction_block must be a non-zero 3-vector, got {np.asarray(view_direction_block).tolist()}"
             )
         view = view / np.linalg.norm(view)
         hidden = [f"+{a}" for a, c in zip("xyz", view) if c <= np.cos(np.radians(max_incidence_deg))]

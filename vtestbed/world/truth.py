@@ -66,8 +66,12 @@ def _positive(values, source: Path, field: str, joint: int) -> float:
 @cache
 def load_truth(name: str) -> RobotTruth:
     """Read ``models/<name>/truth.toml`` (once per process), checked against the description."""
-    robot: RobotDescription = load_robot(name)
-    source = robot_dir(name) / TRUTH_FILE_NAME
+    return truth_from_file(robot_dir(name) / TRUTH_FILE_NAME, load_robot(name))
+
+
+def truth_from_file(source: Path, robot: RobotDescription) -> RobotTruth:
+    """Read and check a ``truth.toml`` at any path against ``robot`` (``robot import`` checks its
+    new file before installing it)."""
     data = read_toml(source, "world truth", DescriptionError)
     if data.get("robot", robot.name) != robot.name:
         raise DescriptionError(

@@ -86,10 +86,52 @@ def parse_effect(table, f: Fields, where: str) -> WorldEffect:
     return kind(**values)
 
 
+TARGET_KINDS = ("integer", "pair")  # the parameters that say where an effect acts: a link, a joint, a pair
+TARGET_WORDS = {"joints": "joint pair"}
+
+
+def effect_identity(effect: WorldEffect) -> tuple[str, tuple]:
+    """What an effect is and where it acts: its name and its target parameters (``link``,
+    ``joint``, ``joints`` as an unordered pair; defaults filled in). Effects without a target
+    (the sensor's, the scanner's, the base's) act on the one thing there is: the name alone."""
+    target = tuple(
+        (p.name, tuple(sorted(value)) if p.kind == "pair" else value)
+        for p in effect.PARAMS
+        if p.kind in TARGET_KINDS
+        for value in (getattr(effect, p.name),)
+    )
+    return effect.name, target
+
+
+def _describe(identity: tuple[str, tuple]) -> str:
+    name, target = identity
+    where = ", ".join(f"{k} = {list(v) if isinstance(v, tuple) else v}" for k, v in target)
+    return f"{name} on {where}" if where else name
+
+
 def parse_effects(value, f: Fields, where: str = "world.effects") -> tuple[WorldEffect, ...]:
-    """The effects of a ``[[world.effects]]`` array of tables (an empty tuple when absent)."""
+    """The effects of a ``[[world.effects]]`` array of tables (an empty tuple when absent).
+
+    One rule for repeats: an effect may be listed once per target (the same name on the same
+    link, joint or joint pair twice is refused). Two entries would either collide in the MuJoCo
+    model (two hinges of one name) or silently add up, and neither is what a reader of the file
+    expects; one entry with the combined size says it plainly.
+    """
     if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
         raise f.error(
             where, "must be an array of tables ([[world.effects]], each with a name and parameters)"
         )
-    return tuple(parse_effect(t, f, f"{where}[{i}]") for i, t in enumerate(value))
+    effects = tuple(parse_effect(t, f, f"{where}[{i}]") for i, t in enumerate(value))
+    seen: dict[tuple, int] = {}
+    for i, effect in enumerate(effects):
+        identity = effect_identity(effect)
+        if identity in seen:
+            target = " and ".join(TARGET_WORDS.get(name, name) for name, _ in identity[1])
+            rule = f"listed once per {target}" if target else "listed once (it has no target)"
+            raise f.error(
+                f"{where}[{i}]",
+                f"repeats {where}[{seen[identity]}] ({_describe(identity)}): an effect may be {rule};"
+                " give one entry with the combined size" + (f", or another {target}" if target else ""),
+            )
+        seen[identity] = i
+    return effects
