@@ -342,7 +342,7 @@ def run(
         out / "dataset", scenario.method, progress, timings, strict=strict
     )
     t0 = time.perf_counter()
-    truth = comparison.read_truth(out / "dataset")
+    truth = comparison.read_truth(out / "dataset", dof=len(result.joint_names))
     joints = comparison.compare(result, truth)
     k_true = np.array([j["k_true"] for j in joints])
     conv = report.convergence(measurements, scenario.method, result.joint_names, result.displacement_cov)
