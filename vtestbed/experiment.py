@@ -318,8 +318,9 @@ def identify_dataset_with_floor(
 
         noise_floor = estimate_noise_floor(root, measurements)
     result = identify_measurements(
-        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor
-    )
+        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
+        source=str(root),
+    )  # fmt: skip
     timings.process += t1 - t0
     timings.identify += time.perf_counter() - t1
     return setup, measurements, result, noise_floor

@@ -172,17 +172,42 @@ NO_FLOOR = (
 )
 
 
+# gls_floor whitens with the floor's 6 x 6 covariance: estimated from fewer than 6 independent
+# displacement samples it has rank < 6 (singular), and its weights would be meaningless.
+MIN_FLOOR_SAMPLES = 6
+
+
+def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
+    """The noise floor's covariance for ``gls_floor``, or a DatasetError naming ``source`` (the
+    dataset folder, if any), the samples it has and the samples it needs (no floor, or one from
+    too few repeat scans)."""
+    where = f"{source}: " if source else ""
+    if noise_floor is None:
+        raise DatasetError(f"{where}{NO_FLOOR}")
+    if noise_floor.n_samples < MIN_FLOOR_SAMPLES:
+        raise DatasetError(
+            f"{where}identification method 'gls_floor' weights with the repeat-scan noise floor's "
+            f"6 x 6 covariance, which needs at least {MIN_FLOOR_SAMPLES} repeat-scan samples (one per "
+            f"repeat of a test); repeats.csv gives {noise_floor.n_samples} (from {noise_floor.n_tests} "
+            f"test{'s' * (noise_floor.n_tests != 1)}): record {MIN_FLOOR_SAMPLES - noise_floor.n_samples} "
+            "more repeat scans, or use method 'fgls'"
+        )
+    return noise_floor.covariance
+
+
 def identify_measurements(
     measurements: list[TestMeasurement],
     method: str = "fgls",
     joint_names=None,
     strict: bool = False,
     noise_floor=None,
+    source: str | None = None,
 ) -> IdentificationResult:
     """Identify from the ``identification`` group of reduced tests.
 
     ``noise_floor`` (a :class:`~vtestbed.researcher.noise_floor.NoiseFloor`) is required by
-    ``method="gls_floor"``, which weights with its covariance, and ignored by the others.
+    ``method="gls_floor"``, which weights with its covariance, and ignored by the others;
+    ``source`` (the dataset folder) names where a missing or too small floor comes from.
 
     Tests that no wire load could produce (:func:`motionless_tests` and the checks of
     :mod:`.plausibility`) are named in the result's warnings, or, with ``strict``, raise an
@@ -194,9 +219,7 @@ def identify_measurements(
     ids = tuple(m.test_id for m in tests)
     cov = None
     if method == "gls_floor":
-        if noise_floor is None:
-            raise DatasetError(NO_FLOOR)
-        cov = noise_floor.covariance
+        cov = gls_floor_covariance(noise_floor, source)
     result = identify(
         *stacked(tests), method=method, displacement_cov=cov, joint_names=joint_names, test_ids=ids
     )
