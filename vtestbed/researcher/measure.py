@@ -99,14 +99,29 @@ def fit_scan(points: np.ndarray, nominal, setup: DatasetSetup, label: str) -> np
     return fit_scan_frame(points, nominal, setup, label).pose
 
 
+def read_scan(path: Path, label: str) -> np.ndarray:
+    """The points (N, 3) [m, scanner frame] of one scan file, or a ScanError that starts with
+    ``label`` and the file (an unreadable file, or points with a NaN or infinite coordinate, which
+    the fit would refuse without saying which file held them)."""
+    try:
+        points = read_ply(path)
+    except VtestbedError as exc:
+        raise ScanError(f"{label} {path}: {exc}") from None
+    bad = ~np.all(np.isfinite(points), axis=1)
+    if bad.any():
+        raise ScanError(
+            f"{label} {path}: {int(bad.sum())} of its {len(points)} points have a NaN or infinite "
+            "coordinate; valid: finite coordinates in m (remove those points, or rescan)"
+        )
+    return points
+
+
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
     """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian."""
-    clouds = []
-    for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
-        try:
-            clouds.append(read_ply(path))
-        except VtestbedError as exc:
-            raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
+    clouds = [
+        read_scan(path, f"test {record.test_id}, {label} cloud")
+        for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded))
+    ]
     return measure_arrays(record, clouds[0], clouds[1], setup, kin)
 
 
