@@ -128,3 +128,23 @@ def test_rerun_does_nothing_and_more_trials_add_only_the_new_ones(tiny_sweep, tm
     with pytest.raises(SweepError, match="other vtestbed code"):
         sweep(tiny(), out, progress=False)
     assert len(sweep(tiny(), out, progress=False, allow_code_change=True)) == 24
+
+
+def test_code_fingerprint_covers_the_campaigns_robot_only(tmp_path, monkeypatch):
+    from vtestbed import robots
+    from vtestbed.campaigns.store import code_fingerprint
+
+    models = tmp_path / "models"
+    shutil.copytree(robots.MODELS_DIR, models)
+    monkeypatch.setattr(robots, "MODELS_DIR", models)
+    kr60, ur10 = code_fingerprint("kuka_kr60_3"), code_fingerprint("ur10")
+    assert kr60 != ur10
+    # another robot imported (or edited): the KR60-3's sweeps still resume
+    shutil.copytree(models / "ur10", models / "imported_arm")
+    (models / "ur10" / "truth.toml").write_text((models / "ur10" / "truth.toml").read_text() + "\n# edited\n")
+    assert code_fingerprint("kuka_kr60_3") == kr60 and code_fingerprint("ur10") != ur10
+    # the campaign's own robot edited: its folder holds results of other code
+    (models / "kuka_kr60_3" / "truth.toml").write_text(
+        (models / "kuka_kr60_3" / "truth.toml").read_text() + "\n"
+    )
+    assert code_fingerprint("kuka_kr60_3") != kr60

@@ -88,10 +88,36 @@ def test_truth_file_is_optional_and_checked(tmp_path):
 
 @pytest.mark.parametrize(
     "values",
-    [None, K_TRUE[:5].tolist(), [*K_TRUE[:5], -1.0], [*K_TRUE[:5], float("nan")], "stiff", [[1.0] * 6]],
-)
-def test_a_bad_true_stiffness_names_the_field_and_its_size(values):
-    with pytest.raises(
-        DatasetError, match=r"truth\.json: stiffness_true_Nm_per_rad must be 6 positive numbers"
-    ):
+    [None, K_TRUE[:5].tolist(), [*K_TRUE[:5], -1.0], [*K_TRUE[:5], float("nan")], "stiff", [[1.0] * 6],
+     [1e-300] * 6, (K_TRUE * 1e3).tolist()],  # a denormal-size number, N*mm/rad for N*m/rad
+)  # fmt: skip
+def test_a_bad_true_stiffness_names_the_field_its_size_and_range(values):
+    with pytest.raises(DatasetError) as exc:
         true_stiffness({"stiffness_true_Nm_per_rad": values}, 6)
+    assert str(exc.value) == (
+        "truth.json: stiffness_true_Nm_per_rad must be 6 numbers (one per joint), each in [10, 1e+09] "
+        f"N*m/rad, got {values!r}"
+    )
+
+
+@pytest.mark.parametrize(
+    "truth, message",
+    [
+        ({"joint_names": [f"joint{i}" for i in range(1, 7)], "stiffness_true_Nm_per_rad": K_TRUE[:5].tolist()},
+         "{path}: stiffness_true_Nm_per_rad must be 6 numbers (one per joint), each in [10, 1e+09] N*m/rad, got "
+         "[2197700.0, 899390.0, 1111800.0, 64449.0, 25362.0]"),
+        ({"joint_names": ["joint1", "joint2"], "tests": {}},
+         "{path}: key 'stiffness_true_Nm_per_rad' is missing; it must hold 2 numbers (one per joint), each in "
+         "[10, 1e+09] N*m/rad"),
+        ({"tests": {}},
+         "{path}: key 'stiffness_true_Nm_per_rad' is missing; it must hold numbers (one per joint), each in "
+         "[10, 1e+09] N*m/rad"),
+        ({"stiffness_true_Nm_per_rad": [1e-300] * 6}, "{path}: stiffness_true_Nm_per_rad must be 6 numbers (one per "
+         "joint), each in [10, 1e+09] N*m/rad, got [1e-300, 1e-300, 1e-300, 1e-300, 1e-300, 1e-300]"),
+    ],
+)  # fmt: skip
+def test_a_bad_truth_file_is_named_with_its_folder(tmp_path, truth, message):
+    (tmp_path / "truth.json").write_text(json.dumps(truth))
+    with pytest.raises(DatasetError) as exc:
+        read_truth(tmp_path)
+    assert str(exc.value) == message.format(path=tmp_path / "truth.json")

@@ -190,11 +190,29 @@ def _with_repeats(datasets, tmp_path, text: str) -> Path:
          r"line 2 .*cloud '../r0/clouds/T001_unloaded.ply' must be a path inside the dataset folder"),
         ("T001,1,\n", r"line 2 .*cloud '' must be a path inside the dataset folder"),
         ("T001,1,clouds/T001_repeat1.ply\n", r"repeats.csv line 2 \(test 'T001'\): cloud: point cloud .*T001_repeat1.ply is missing"),
+        ("T001,1,clouds/extra.ply\nT001,2,clouds/T001_loaded.ply\n",
+         r"repeats.csv line 3 \(test 'T001'\): cloud 'clouds/T001_loaded.ply' is the test's own loaded scan "
+         r"\(cloud_loaded in .*/d/tests.csv\); a repeat must be another scan of the unloaded block, in its own "
+         r"file \(e.g. clouds/T001_repeat2.ply\)$"),
+        ("T002,1,clouds/../clouds/T002_unloaded.ply\n",
+         r"repeats.csv line 2 \(test 'T002'\): cloud 'clouds/../clouds/T002_unloaded.ply' is the test's own "
+         r"unloaded scan \(cloud_unloaded in "),
+        ("T001,1,clouds/T002_unloaded.ply\n", None),  # another test's scan: a path check cannot tell
     ],
 )  # fmt: skip
 def test_bad_repeats_csv_names_file_line_and_field(datasets, tmp_path, rows, message):
     d = _with_repeats(datasets, tmp_path, "test_id,repeat,cloud\n" + rows)
+    if message is None:
+        assert [r.repeat for r in read_repeats(d)] == [1]
+        return
     with pytest.raises(DatasetError, match=message):
+        read_repeats(d)
+
+
+def test_a_repeat_hard_linked_to_the_tests_own_scan_is_refused(datasets, tmp_path):
+    d = _with_repeats(datasets, tmp_path, "test_id,repeat,cloud\nT003,1,clouds/copy.ply\n")
+    (d / "clouds" / "copy.ply").hardlink_to(d / "clouds" / "T003_loaded.ply")
+    with pytest.raises(DatasetError, match=r"cloud 'clouds/copy.ply' is the test's own loaded scan"):
         read_repeats(d)
 
 

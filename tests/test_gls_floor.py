@@ -100,3 +100,24 @@ def test_identify_estimates_the_floor_once_and_reports_the_one_it_weighted_with(
     np.testing.assert_allclose(
         out["noise_floor"]["covariance"], independent.covariance, rtol=1e-12, atol=1e-30
     )
+
+
+def test_too_few_repeat_samples_name_the_dataset_and_how_many_are_needed(dataset, tmp_path, capsys):
+    import shutil
+
+    root = shutil.copytree(dataset[1], tmp_path / "one")
+    rows = (root / "repeats.csv").read_bytes().splitlines(keepends=True)
+    (root / "repeats.csv").write_bytes(b"".join(rows[:2]))  # the header and T001's first repeat
+    message = (
+        f"{root}: identification method 'gls_floor' weights with the repeat-scan noise floor's 6 x 6 "
+        "covariance, which needs at least 6 repeat-scan samples (one per repeat of a test); repeats.csv "
+        "gives 1 (from 1 test): record 5 more repeat scans, or use method 'fgls'"
+    )
+    with pytest.raises(DatasetError) as exc:
+        identify_dataset(root, "gls_floor")
+    assert str(exc.value) == message
+    assert cli_main.main(["identify", str(root), "--method", "gls_floor", "--quiet"]) == 2
+    assert capsys.readouterr().err == f"vtestbed: error: {message}\n"
+    (root / "repeats.csv").write_bytes(b"".join(rows[:7]))  # T001 and T002, 3 repeats each: 6 samples
+    _, _, result = identify_dataset(root, "gls_floor")
+    assert result.method == "gls_floor" and np.all(result.stiffness > 0)

@@ -176,7 +176,7 @@ def test_template_ships_as_package_data():
 
 
 def test_cli_writes_the_page_and_refuses_a_folder_without_result(run_folder, tmp_path, capsys):
-    out = tmp_path / "page.html"
+    out = tmp_path / "new" / "sub" / "page.html"  # a missing folder is created, as for other --out
     assert cli_main(["report", str(run_folder), "--out", str(out)]) == 0
     assert out.stat().st_size > 1e6 and "Table 5" in out.read_text(encoding="utf-8")
     capsys.readouterr()

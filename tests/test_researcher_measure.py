@@ -194,6 +194,44 @@ def test_missing_clouds_and_empty_datasets_are_named(tmp_path, lab, robot):
         measure_test(bad_pose, _setup(lab), kin)
 
 
+def _raw_ply(path, pts) -> Path:
+    """A binary PLY as a scanner may write it, NaN and inf included (write_ply refuses them)."""
+    header = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
+    header += "property double x\nproperty double y\nproperty double z\nend_header\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(header.encode() + np.asarray(pts, "<f8").tobytes())
+    return path
+
+
+def test_non_finite_points_name_the_test_and_the_file(tmp_path, lab, robot):
+    from vtestbed.researcher.noise_floor import estimate_noise_floor
+
+    pts = np.random.default_rng(1).normal(size=(50, 3))
+    pts[[3, 7], 1], pts[9, 2] = np.nan, np.inf  # 3 points, one coordinate each
+    bad = _raw_ply(tmp_path / "clouds" / "T003_loaded.ply", pts)
+    good = write_ply(tmp_path / "clouds" / "T003_unloaded.ply", np.nan_to_num(pts))
+    record = Record(
+        "T003", "identification", np.array(POSE_DEG), np.zeros(6), np.zeros(6), np.eye(4), good, bad
+    )
+    kin = ArmKinematics(robot, lab.block_in_flange)
+    with pytest.raises(ScanError) as exc:
+        measure_test(record, _setup(lab), kin)
+    assert str(exc.value) == (
+        f"test T003, loaded cloud {bad}: 3 of its 50 points have a NaN or infinite coordinate; "
+        "valid: finite coordinates in m (remove those points, or rescan)"
+    )
+    # a repeat scan, read for the noise floor, says the same with its repeat number
+    write_setup(tmp_path, _setup(lab))
+    with Writer(tmp_path) as w:
+        w.append(record)
+    (tmp_path / "repeats.csv").write_text("test_id,repeat,cloud\nT003,1,clouds/T003_loaded_copy.ply\n")
+    _raw_ply(tmp_path / "clouds" / "T003_loaded_copy.ply", pts)
+    with pytest.raises(
+        ScanError, match=r"^test T003, repeat 1 cloud .*T003_loaded_copy\.ply: 3 of its 50 points"
+    ):
+        estimate_noise_floor(tmp_path)
+
+
 def test_a_block_that_did_not_move_under_load_is_flagged_by_test_id(robot, lab):
     tests = _synthetic(robot, lab, 8)  # exact model displacements: k = Table 5
     clean = identify_measurements(tests, joint_names=robot.joint_names)

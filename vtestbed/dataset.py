@@ -322,8 +322,9 @@ def repeat_cloud_path(root: str | Path, test_id: str, repeat: int) -> Path:
     return Path(root) / CLOUD_DIR / f"{test_id}_repeat{repeat}.ply"
 
 
-def _read_repeat_rows(root: Path, test_ids, check_files: bool) -> list[RepeatRecord]:
-    """repeats.csv as records; ``test_ids`` None skips the check against tests.csv."""
+def _read_repeat_rows(root: Path, test_ids, check_files: bool, tests=None) -> list[RepeatRecord]:
+    """repeats.csv as records; ``test_ids`` None skips the check against tests.csv, ``tests``
+    (test id -> TestRecord) the check that a repeat is not the test's own scan."""
     path = root / REPEATS_FILE
     rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
     records, first_line = [], {}
@@ -347,6 +348,11 @@ def _read_repeat_rows(root: Path, test_ids, check_files: bool) -> list[RepeatRec
         cloud = checks.cloud_path(root, row["cloud"], where, "cloud", f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply")
         if check_files and not cloud.is_file():
             raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
+        if tests is not None and tid in tests:
+            own = {"unloaded": tests[tid].cloud_unloaded, "loaded": tests[tid].cloud_loaded}
+            checks.not_own_scan(
+                cloud, own, root / TESTS_FILE, where, row["cloud"], f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply"
+            )
         records.append(RepeatRecord(tid, repeat, cloud))
     return records
 
@@ -365,13 +371,14 @@ def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecor
     ------
     DatasetError
         Naming the file, the line and the field: a test_id not in tests.csv, a repeat that is not
-        an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing.
+        an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing,
+        a cloud that is the test's own unloaded or loaded scan.
     """
     root = Path(root)
     if not (root / REPEATS_FILE).is_file():
         return []
-    test_ids = {r.test_id for r in read_tests(root, check_files=False)}
-    return _read_repeat_rows(root, test_ids, check_files)
+    tests = {r.test_id: r for r in read_tests(root, check_files=False)}
+    return _read_repeat_rows(root, set(tests), check_files, tests)
 
 
 class RepeatWriter(_RowWriter):

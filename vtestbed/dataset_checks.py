@@ -149,3 +149,24 @@ def cloud_path(root: Path, text: str, where: str, field: str, example: str) -> P
             f"(e.g. {example})"
         )
     return path
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.samefile(b)  # a hard link to the same scan
+    except OSError:  # one of them is missing: the file checks name it
+        return False
+
+
+def not_own_scan(cloud: Path, own: dict, tests_file: Path, where: str, text: str, example: str) -> None:
+    """A repeat scan (``cloud``) must not be its test's own scan (``own``: state -> path): the
+    unloaded scan would enter the noise floor as an exact zero, the loaded one as the load's
+    displacement (a floor 10-40 times too large), and neither looks wrong as a number."""
+    for state, path in own.items():
+        if _same_file(cloud, path):
+            raise DatasetError(
+                f"{where}: cloud {text!r} is the test's own {state} scan (cloud_{state} in {tests_file}); "
+                f"a repeat must be another scan of the unloaded block, in its own file (e.g. {example})"
+            )

@@ -15,7 +15,6 @@ separate stream (:func:`vtestbed.world.repeats.repeat_rng`), so they change no o
 
 from __future__ import annotations
 
-import shutil
 import time
 from contextlib import ExitStack, closing
 from dataclasses import dataclass
@@ -26,7 +25,6 @@ import numpy as np
 from . import comparison, ply
 from .dataset import (
     CLOUD_DIR,
-    REPEATS_FILE,
     TRUTH_FILE,
     DatasetSetup,
     RepeatRecord,
@@ -37,8 +35,10 @@ from .dataset import (
     write_setup,
 )
 from .errors import DatasetError
+from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
 from .lab import LabSetup
+from .output_folders import RUN, require_own_kind
 from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
@@ -110,39 +110,6 @@ def test_id(group: str, index: int) -> str:
 test_id.__test__ = False  # a naming helper, not a pytest test
 
 
-def _remove_dataset(out: Path) -> None:
-    """Delete the files a simulation writes in ``out`` (and nothing else)."""
-    for name in (TRUTH_FILE, "tests.csv", "setup.json", REPEATS_FILE):
-        (out / name).unlink(missing_ok=True)
-    shutil.rmtree(out / CLOUD_DIR, ignore_errors=True)
-
-
-def _start_truth(out: Path, scenario: Scenario, rig: Rig, replace_stale: bool = False) -> dict:
-    truth_path = out / TRUTH_FILE
-    if truth_path.exists():
-        truth = comparison.read_truth(out)
-        if truth.get("scenario_fingerprint") != scenario.fingerprint and replace_stale:
-            _remove_dataset(out)
-            return _start_truth(out, scenario, rig)
-        if truth.get("scenario_fingerprint") != scenario.fingerprint:
-            raise DatasetError(
-                f"{out} holds a dataset of another scenario (fingerprint {truth.get('scenario_fingerprint')} "
-                f"!= {scenario.fingerprint}); choose a new output folder"
-            )
-        truth.setdefault("tests", {})
-        return truth
-    return {
-        "scenario": scenario.name,
-        "scenario_fingerprint": scenario.fingerprint,
-        "seed": scenario.seed,
-        "robot": scenario.robot_name,
-        "joint_names": list(rig.robot.joint_names),
-        "stiffness_true_Nm_per_rad": rig.truth.stiffness_true.tolist(),
-        "effects": [e.to_dict() for e in scenario.effects if not e.is_null],
-        "tests": {},
-    }
-
-
 def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
     """The truth-world physics of ``jobs`` (group, index, pose, load), in order, on a few threads
     (:mod:`vtestbed.world.physics_pool`); yields (TestPhysics, Timings of that test)."""
@@ -188,17 +155,19 @@ def simulate(
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out, "dataset folder", DatasetError):  # one writer at a time
         rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
-        truth = _start_truth(out, scenario, rig, replace_stale)
+        truth = start_truth(out, scenario, rig, replace_stale)  # refuses another command's folder
         repeats = scenario.scanner.repeats
         truth["repeats"] = repeats
-        truth_file = TruthFile(out / TRUTH_FILE, truth)
-        write_setup(out, dataset_setup(scenario, lab))
-        noise = scenario.scanner.noise_model
-        sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
         jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
         jobs += [
             ("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)
         ]
+        check_finished(out, truth, [test_id(g, i) for g, i, _, _ in jobs])  # before writing anything
+        truth_file = TruthFile(out / TRUTH_FILE, truth)
+        truth_file.write()  # first: it marks the folder as a simulation's (experiment_resume)
+        write_setup(out, dataset_setup(scenario, lab))
+        noise = scenario.scanner.noise_model
+        sensor = ForceTorqueSensor(lab.sensor, scenario.force_sensor.noise_std, scenario.force_sensor.bias)
         bar = None
         if progress:
             from tqdm import tqdm
@@ -212,13 +181,15 @@ def simulate(
                 if repeats else []
                 for g, i, _, _ in jobs
             }  # fmt: skip
-            needed = [job for job in jobs if test_id(*job[:2]) not in writer.done or todos[test_id(*job[:2])]]
+            lost = lost_clouds(out, writer.done)  # redone from the test's own stream, byte for byte
+            needed = [job for job in jobs if test_id(*job[:2]) not in writer.done or todos[test_id(*job[:2])]
+                      or test_id(*job[:2]) in lost]  # fmt: skip
 
             computed = stack.enter_context(closing(_scenario_physics(scenario, rig, needed)))
             for group, i, q, load in jobs:
                 tid = test_id(group, i)
                 todo = todos[tid]
-                if tid not in writer.done or todo:
+                if tid not in writer.done or todo or tid in lost:
                     phys, test_timings = next(computed)
                     timings.physics += test_timings.physics  # summed over threads that overlap
                     timings.scan += test_timings.scan
@@ -233,7 +204,7 @@ def simulate(
                         path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
                         repeat_writer.append(RepeatRecord(tid, k, path))
                     timings.write += time.perf_counter() - t2
-                if tid not in writer.done:
+                if tid not in writer.done or tid in lost:
                     rng = test_rng(scenario.seed, group, i)
                     s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
                     t3 = time.perf_counter()
@@ -253,6 +224,14 @@ def simulate(
                         out / CLOUD_DIR / f"{tid}_unloaded.ply",
                         out / CLOUD_DIR / f"{tid}_loaded.ply",
                     )
+                    if tid in lost:  # a finished test: only its lost clouds are written again
+                        for path, cloud in zip(paths, (cloud0, cloud1)):
+                            if path in lost[tid]:
+                                ply.write_ply(path, cloud)
+                        timings.write += time.perf_counter() - t4
+                        if bar:
+                            bar.update()
+                        continue
                     ply.write_ply(paths[0], cloud0)
                     ply.write_ply(paths[1], cloud1)
                     truth_file.add(tid, {
@@ -339,8 +318,9 @@ def identify_dataset_with_floor(
 
         noise_floor = estimate_noise_floor(root, measurements)
     result = identify_measurements(
-        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor
-    )
+        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
+        source=str(root),
+    )  # fmt: skip
     timings.process += t1 - t0
     timings.identify += time.perf_counter() - t1
     return setup, measurements, result, noise_floor
@@ -357,12 +337,13 @@ def run(
     """simulate + identify + compare; writes ``out/result.json`` and figures; returns the result."""
     out = Path(out)
     timings = Timings()
+    require_own_kind(out, (RUN,), "vtestbed run", DatasetError)  # its report.html is not a sweep's
     simulate(scenario, out / "dataset", progress=progress, timings=timings, replace_stale=replace_stale)
     setup, measurements, result = identify_dataset(
         out / "dataset", scenario.method, progress, timings, strict=strict
     )
     t0 = time.perf_counter()
-    truth = comparison.read_truth(out / "dataset")
+    truth = comparison.read_truth(out / "dataset", dof=len(result.joint_names))
     joints = comparison.compare(result, truth)
     k_true = np.array([j["k_true"] for j in joints])
     conv = report.convergence(measurements, scenario.method, result.joint_names, result.displacement_cov)

@@ -40,6 +40,7 @@ from .dataset import (
 from .dataset_checks import BLOCK_EDGE_RANGE_M
 from .errors import DatasetError, VtestbedError
 from .files import read_json, read_toml
+from .output_folders import require_own_kind
 from .ply import read_ply, write_ply
 from .robots import load_robot
 from .schema import Fields
@@ -295,6 +296,7 @@ def import_dataset(
     out = Path(out)
     if (out / TESTS_FILE).exists():
         raise DatasetError(f"{out} already holds a dataset ({TESTS_FILE}); choose an empty or new folder")
+    require_own_kind(out, (), "vtestbed dataset import", DatasetError)  # a sweep's or a run's folder
     sensor = setup.sensor_spec
     readings, clouds = {}, {}
     for t in spec["tests"]:

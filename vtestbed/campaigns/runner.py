@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..files import folder_lock
+from ..output_folders import SWEEP, require_own_kind
 from .spec import Campaign, load_campaign
 from .store import (
     TRIALS_DIR,
@@ -224,6 +225,7 @@ def sweep(
 
 
 def _sweep_into(out, campaign, workers, scheduler, progress, batch_trials, stats, allow_code_change, t_start):
+    require_own_kind(out, (SWEEP,), "vtestbed sweep", SweepError)  # a run's or a dataset's folder
     manifest = open_manifest(out, campaign, allow_code_change)
     log = _logger(progress)
     t0 = time.perf_counter()

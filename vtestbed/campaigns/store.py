@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import VtestbedError
 from ..files import read_json, write_atomic, write_json_atomic
-from ..robots import MODELS_DIR
+from ..robots import robot_dir
 from ..world.truth import load_truth
 from .posesets import TestPlan, build_plans, plan_prior, plan_quality
 from .spec import AXES, Campaign
@@ -76,12 +76,14 @@ def _read_part(path: Path) -> pd.DataFrame:
     return frame
 
 
-def code_fingerprint() -> str:
+def code_fingerprint(robot: str) -> str:
     """Hash of the source that shapes a trial's numbers (package modules but the CLI and reports,
-    and the robot model files): results of different code are not mixed in one folder."""
+    and the model files of the campaign's ``robot``): results of different code are not mixed in
+    one folder. Other robots' files are left out: importing a robot must not block resuming the
+    sweeps of the robots already there."""
     package = Path(__file__).resolve().parents[1]
     files = [p for p in sorted(package.rglob("*.py")) if not _reporting_only(p.relative_to(package))]
-    files += sorted(MODELS_DIR.glob("*/*.toml"))
+    files += sorted(robot_dir(robot).glob("*.toml"))
     h = hashlib.sha256()
     for p in files:
         name = p.relative_to(package) if p.is_relative_to(package) else Path(p.parent.name, p.name)
@@ -101,7 +103,7 @@ def _reporting_only(relative: Path) -> bool:
 
 def open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dict:
     path = out / MANIFEST
-    code = code_fingerprint()
+    code = code_fingerprint(campaign.scenario.robot_name)
     if path.exists():
         manifest = read_json(path, "campaign manifest", SweepError)
         for key in ("plans", "plan_quality"):

@@ -126,6 +126,23 @@ def output_dir(text: str) -> Path:
     return path
 
 
+def output_file(text: str) -> Path:
+    """An ``type=`` for a file to write (``report --out FILE``): not a folder, and its folder is
+    one we may write in or can create (checked like :func:`output_dir`; the command creates it)."""
+    path = Path(text)
+    if not text:
+        raise argparse.ArgumentTypeError("must be a file path, got ''")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(
+            f"{path} is a folder, not a file: give the file to write, e.g. {path / 'report.html'}"
+        )
+    try:
+        output_dir(str(path.parent))
+    except argparse.ArgumentTypeError as exc:  # the folder's own message, prefixed with the file
+        raise argparse.ArgumentTypeError(f"{path}: cannot write the file: {exc}") from None
+    return path
+
+
 NUMBER_LIST = re.compile(r"^-[\d.][\d.eE+-]*(,\s*[-+]?[\d.][\d.eE+-]*)+$")
 
 

@@ -70,7 +70,7 @@ def _cmd_identify(args) -> int:
     out = {"dataset": str(args.dataset), **result.as_dict()}
     if floor is not None:
         out["noise_floor"] = floor.as_dict()
-    truth = None if args.no_truth else read_truth(args.dataset)
+    truth = None if args.no_truth else read_truth(args.dataset, dof=len(result.joint_names))  # names the file
     if truth is not None:
         out["joints"] = compare(result, truth)
     if args.json:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .args import output_file
+
 
 def _cmd_report(args) -> int:
     from ..reports import write_report
@@ -19,5 +21,9 @@ def register(sub) -> None:
         "report", help="write DIR/report.html: a self-contained page of a run, campaign or diagnosis folder"
     )
     p.add_argument("dir", type=Path, help="a folder written by 'vtestbed run', 'sweep' or 'diagnose --out'")
-    p.add_argument("--out", type=Path, help="the HTML file to write (default DIR/report.html)")
+    p.add_argument(
+        "--out",
+        type=output_file,
+        help="the HTML file to write (default DIR/report.html; its folder is created)",
+    )
     p.set_defaults(func=_cmd_report)

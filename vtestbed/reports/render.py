@@ -93,5 +93,6 @@ def write_report(root: str | Path, out: str | Path | None = None) -> Path:
     folder = load_result(root)
     out = Path(root) / REPORT_FILE if out is None else Path(out)
     html = render(folder)
+    out.parent.mkdir(parents=True, exist_ok=True)  # `report --out` checked that it may be created
     write_atomic(out, lambda tmp: tmp.write_text(html, encoding="utf-8"))  # plotly.js is not ASCII
     return out

@@ -99,14 +99,29 @@ def fit_scan(points: np.ndarray, nominal, setup: DatasetSetup, label: str) -> np
     return fit_scan_frame(points, nominal, setup, label).pose
 
 
+def read_scan(path: Path, label: str) -> np.ndarray:
+    """The points (N, 3) [m, scanner frame] of one scan file, or a ScanError that starts with
+    ``label`` and the file (an unreadable file, or points with a NaN or infinite coordinate, which
+    the fit would refuse without saying which file held them)."""
+    try:
+        points = read_ply(path)
+    except VtestbedError as exc:
+        raise ScanError(f"{label} {path}: {exc}") from None
+    bad = ~np.all(np.isfinite(points), axis=1)
+    if bad.any():
+        raise ScanError(
+            f"{label} {path}: {int(bad.sum())} of its {len(points)} points have a NaN or infinite "
+            "coordinate; valid: finite coordinates in m (remove those points, or rescan)"
+        )
+    return points
+
+
 def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
     """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian."""
-    clouds = []
-    for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded)):
-        try:
-            clouds.append(read_ply(path))
-        except VtestbedError as exc:
-            raise ScanError(f"test {record.test_id}, {label} cloud {path}: {exc}") from None
+    clouds = [
+        read_scan(path, f"test {record.test_id}, {label} cloud")
+        for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded))
+    ]
     return measure_arrays(record, clouds[0], clouds[1], setup, kin)
 
 
@@ -172,17 +187,42 @@ NO_FLOOR = (
 )
 
 
+# gls_floor whitens with the floor's 6 x 6 covariance: estimated from fewer than 6 independent
+# displacement samples it has rank < 6 (singular), and its weights would be meaningless.
+MIN_FLOOR_SAMPLES = 6
+
+
+def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
+    """The noise floor's covariance for ``gls_floor``, or a DatasetError naming ``source`` (the
+    dataset folder, if any), the samples it has and the samples it needs (no floor, or one from
+    too few repeat scans)."""
+    where = f"{source}: " if source else ""
+    if noise_floor is None:
+        raise DatasetError(f"{where}{NO_FLOOR}")
+    if noise_floor.n_samples < MIN_FLOOR_SAMPLES:
+        raise DatasetError(
+            f"{where}identification method 'gls_floor' weights with the repeat-scan noise floor's "
+            f"6 x 6 covariance, which needs at least {MIN_FLOOR_SAMPLES} repeat-scan samples (one per "
+            f"repeat of a test); repeats.csv gives {noise_floor.n_samples} (from {noise_floor.n_tests} "
+            f"test{'s' * (noise_floor.n_tests != 1)}): record {MIN_FLOOR_SAMPLES - noise_floor.n_samples} "
+            "more repeat scans, or use method 'fgls'"
+        )
+    return noise_floor.covariance
+
+
 def identify_measurements(
     measurements: list[TestMeasurement],
     method: str = "fgls",
     joint_names=None,
     strict: bool = False,
     noise_floor=None,
+    source: str | None = None,
 ) -> IdentificationResult:
     """Identify from the ``identification`` group of reduced tests.
 
     ``noise_floor`` (a :class:`~vtestbed.researcher.noise_floor.NoiseFloor`) is required by
-    ``method="gls_floor"``, which weights with its covariance, and ignored by the others.
+    ``method="gls_floor"``, which weights with its covariance, and ignored by the others;
+    ``source`` (the dataset folder) names where a missing or too small floor comes from.
 
     Tests that no wire load could produce (:func:`motionless_tests` and the checks of
     :mod:`.plausibility`) are named in the result's warnings, or, with ``strict``, raise an
@@ -194,9 +234,7 @@ def identify_measurements(
     ids = tuple(m.test_id for m in tests)
     cov = None
     if method == "gls_floor":
-        if noise_floor is None:
-            raise DatasetError(NO_FLOOR)
-        cov = noise_floor.covariance
+        cov = gls_floor_covariance(noise_floor, source)
     result = identify(
         *stacked(tests), method=method, displacement_cov=cov, joint_names=joint_names, test_ids=ids
     )

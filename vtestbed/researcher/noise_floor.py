@@ -50,13 +50,12 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, read_repeats, read_setup, read_tests
-from ..errors import OutOfRangeError, ScanError, VtestbedError
-from ..ply import read_ply
+from ..errors import OutOfRangeError
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from ..transforms import displacement_in_block_frame
 from .kinematics import ArmKinematics
-from .measure import TestMeasurement, fit_scan, nominal_block_frame
+from .measure import TestMeasurement, fit_scan, nominal_block_frame, read_scan
 
 __all__ = [
     "COMPONENTS",
@@ -242,10 +241,7 @@ def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) 
 
 
 def _read_cloud(path: Path, label: str) -> np.ndarray:
-    try:
-        return read_ply(path)
-    except VtestbedError as exc:
-        raise ScanError(f"{label} {path}: {exc}") from None
+    return read_scan(path, label)  # the file named in every error, as for the tests' own scans
 
 
 def estimate_noise_floor(
