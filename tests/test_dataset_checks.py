@@ -123,9 +123,9 @@ def test_repeat_scans_outside_the_folder_are_refused(dataset):
     [
         ('{"stiffness_true_Nm_per_rad": [1, 2', r"truth\.json: not valid JSON"),
         ("3.5", r"truth\.json: the truth file must hold a JSON dict, got float"),
-        ('{"stiffness_true_Nm_per_rad": "stiff"}', r"truth\.json: stiffness_true_Nm_per_rad must be 1 positive numbers, got 'stiff'"),
-        ('{"stiffness_true_Nm_per_rad": [1e9, NaN]}', r"truth\.json: stiffness_true_Nm_per_rad must be 2 positive numbers, got \[1000000000\.0, nan\]"),
-        ('{"stiffness_true_Nm_per_rad": [1e9, true]}', r"stiffness_true_Nm_per_rad must be 2 positive numbers"),
+        ('{"stiffness_true_Nm_per_rad": "stiff"}', r"truth\.json: stiffness_true_Nm_per_rad must be numbers \(one per joint\), each in \[10, 1e\+09\] N\*m/rad, got 'stiff'"),
+        ('{"stiffness_true_Nm_per_rad": [1e9, NaN]}', r"truth\.json: stiffness_true_Nm_per_rad must be 2 numbers \(one per joint\), each in \[10, 1e\+09\] N\*m/rad, got \[1000000000\.0, nan\]"),
+        ('{"stiffness_true_Nm_per_rad": [1e9, true]}', r"stiffness_true_Nm_per_rad must be 2 numbers \(one per joint\), each in \[10, 1e\+09\]"),
         ('{"stiffness_true_Nm_per_rad": [1e9], "tests": [1]}', r"truth\.json: tests must be a table of the simulated tests by id, got \[1\]"),
     ],
 )  # fmt: skip
