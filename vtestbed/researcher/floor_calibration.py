@@ -6,7 +6,8 @@ the floor's mean inflation of a quadratic form, ``f = nu / (nu - 7)``; that fixe
 chi^2, not its tail. The floor's error is shared by every test, so it moves all the statistics
 together: with the plain chi^2 reference, a likelihood-ratio test at 0.01 / 14 rejected a true
 baseline 2.2 times too often at ``nu = 75`` (1-df), and the detection test at 1 % rejected 2.5 %
-(Monte Carlo with Wishart floors, 40 000 draws; ``tests/test_floor_calibration.py`` repeats it).
+(Monte Carlo on the paper's 20 tests with Wishart floors, 40 000 datasets;
+``tests/test_floor_calibration.py`` checks this reference against such a Monte Carlo at ``nu = 40``).
 
 The reference here is the statistic's distribution under a parametric bootstrap of the floor,
 with the noise integrated out exactly. In the coordinates the floor whitens, the noise is
