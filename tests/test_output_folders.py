@@ -14,7 +14,7 @@ from report_fixtures import small_paper
 from vtestbed.campaigns.runner import sweep
 from vtestbed.campaigns.store import SweepError
 from vtestbed.dataset import read_tests
-from vtestbed.errors import DatasetError
+from vtestbed.errors import DatasetError, SensorOverloadError
 from vtestbed.experiment import run, simulate
 from vtestbed.output_folders import folder_kinds
 from vtestbed.scenario import parse_scenario
@@ -130,3 +130,19 @@ def test_sweep_folder_is_refused_by_simulate_run_and_import(tiny_sweep, tmp_path
     assert _snapshot(folder) == before
     manifest = json.loads((folder / "campaign.json").read_text())
     assert manifest["scenario"]  # still the campaign's own folder
+
+
+def test_a_simulation_refused_at_its_first_test_leaves_a_folder_the_fixed_scenario_can_use(tmp_path):
+    """truth.json is written first, so a refused simulation leaves one; it finished nothing, so the
+    rerun with the corrected scenario replaces it instead of asking for a new folder."""
+    out = tmp_path / "ds"
+    overloaded = small_paper(2, 1) | {"name": "folders", "seed": 4}
+    overloaded["load"]["tension_N"] = 588.6  # beyond the sensor's Fx range on the first test
+    with pytest.raises(SensorOverloadError, match="outside the measuring range"):
+        simulate(parse_scenario(overloaded, "overloaded.toml"), out)
+    assert json.loads((out / "truth.json").read_text())["tests"] == {}
+    fixed = _scenario(n_tests=2)
+    simulate(fixed, out)
+    again = tmp_path / "again"
+    simulate(fixed, again)
+    assert _snapshot(out) == _snapshot(again)  # as if the folder had been new

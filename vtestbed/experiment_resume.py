@@ -35,13 +35,16 @@ def start_truth(out: Path, scenario: Scenario, rig, replace_stale: bool = False)
 
     Raises DatasetError when ``out`` holds another command's result, or another scenario's
     dataset (replaced with ``replace_stale``; a dataset without truth.json never is: it may be
-    a lab's only copy).
+    a lab's only copy). Another scenario's start that finished no test (a simulation refused at
+    its first test, since truth.json is written first) is replaced: it holds nothing to lose, and
+    the rerun after fixing the scenario must not need a new folder.
     """
     require_own_kind(out, (SIMULATED,), "vtestbed simulate", DatasetError)
     truth_path = out / TRUTH_FILE
     if truth_path.exists():
         truth = comparison.read_truth(out)
-        if truth.get("scenario_fingerprint") != scenario.fingerprint and replace_stale:
+        unfinished = not truth.get("tests") and not _has_rows(out / TESTS_FILE)
+        if truth.get("scenario_fingerprint") != scenario.fingerprint and (replace_stale or unfinished):
             remove_dataset(out)
             return start_truth(out, scenario, rig)
         if truth.get("scenario_fingerprint") != scenario.fingerprint:
@@ -61,6 +64,11 @@ def start_truth(out: Path, scenario: Scenario, rig, replace_stale: bool = False)
         "effects": [e.to_dict() for e in scenario.effects if not e.is_null],
         "tests": {},
     }
+
+
+def _has_rows(path: Path) -> bool:
+    """tests.csv with a row below its header."""
+    return path.is_file() and bool(read_tests(path.parent, check_files=False))
 
 
 def check_finished(out: Path, truth: dict, test_ids: list[str]) -> None:
