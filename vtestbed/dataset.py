@@ -322,16 +322,16 @@ def repeat_cloud_path(root: str | Path, test_id: str, repeat: int) -> Path:
     return Path(root) / CLOUD_DIR / f"{test_id}_repeat{repeat}.ply"
 
 
-def _read_repeat_rows(root: Path, test_ids, check_files: bool, tests=None) -> list[RepeatRecord]:
-    """repeats.csv as records; ``test_ids`` None skips the check against tests.csv, ``tests``
-    (test id -> TestRecord) the check that a repeat is not the test's own scan."""
+def _read_repeat_rows(root: Path, tests, check_files: bool) -> list[RepeatRecord]:
+    """repeats.csv as records; ``tests`` (test id -> TestRecord of tests.csv) is what each row is
+    checked against: a test it lists, a cloud that is not that test's own scan (None: neither)."""
     path = root / REPEATS_FILE
     rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
     records, first_line = [], {}
     for line, row in rows:
         tid = row.get("test_id") or ""
         where = f"{path} line {line} (test {tid!r})"
-        if test_ids is not None and tid not in test_ids:
+        if tests is not None and tid not in tests:
             raise DatasetError(f"{where}: test_id {tid!r} is not a test of {root / TESTS_FILE}")
         text = (row.get("repeat") or "").strip()
         try:
@@ -348,7 +348,7 @@ def _read_repeat_rows(root: Path, test_ids, check_files: bool, tests=None) -> li
         cloud = checks.cloud_path(root, row["cloud"], where, "cloud", f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply")
         if check_files and not cloud.is_file():
             raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
-        if tests is not None and tid in tests:
+        if tests is not None:
             own = {"unloaded": tests[tid].cloud_unloaded, "loaded": tests[tid].cloud_loaded}
             checks.not_own_scan(
                 cloud, own, root / TESTS_FILE, where, row["cloud"], f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply"
@@ -378,7 +378,7 @@ def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecor
     if not (root / REPEATS_FILE).is_file():
         return []
     tests = {r.test_id: r for r in read_tests(root, check_files=False)}
-    return _read_repeat_rows(root, set(tests), check_files, tests)
+    return _read_repeat_rows(root, tests, check_files)
 
 
 class RepeatWriter(_RowWriter):

@@ -224,7 +224,7 @@ def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n
         for term in chosen:
             others = [t for t in chosen if t is not term]
             fit = fit_model(ctx, white, others)
-            lr, p, df = current.lr_p_value(fit, term.label)
+            lr, p, df = current.likelihood_ratio_test(fit, term.label)
             if p >= level and (worst is None or p > worst[0]):
                 worst = (p, term, fit, lr, df, [t.label for t in others])
         if worst is None:
@@ -278,7 +278,7 @@ def name_effects(
         level = step_level(alpha, len(remaining), len(chosen), max_terms)
         for cand in remaining:
             fit = fits[cand.label] = fit_model(ctx, white, [*chosen, cand])
-            lr, p, df = fit.lr_p_value(current, cand.label)
+            lr, p, df = fit.likelihood_ratio_test(current, cand.label)
             bic = fit.chi2 + fit.rank * np.log(n_obs)
             sig = p < level
             rows.append({"label": cand.label, "name": cand.name, "lr": lr, "df": df, "p_value": p,

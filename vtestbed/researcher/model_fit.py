@@ -51,7 +51,7 @@ class ModelFit:
         (:func:`.floor_calibration.fit_p_value`)."""
         return fit_p_value(self.chi2, self.design, self.nu)
 
-    def lr_p_value(self, other: ModelFit, label: str) -> tuple[float, float, int]:
+    def likelihood_ratio_test(self, other: ModelFit, label: str) -> tuple[float, float, int]:
         """The likelihood-ratio test of term ``label`` of this fit against ``other``, the fit
         without it: (likelihood ratio, p-value allowing for the floor's estimation, degrees of
         freedom: the rank it adds)."""

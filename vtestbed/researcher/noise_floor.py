@@ -240,10 +240,6 @@ def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) 
     return NoiseFloor(total / dof, dof, len(ids), tuple(ids))
 
 
-def _read_cloud(path: Path, label: str) -> np.ndarray:
-    return read_scan(path, label)  # the file named in every error, as for the tests' own scans
-
-
 def estimate_noise_floor(
     root: str | Path,
     measurements: Sequence[TestMeasurement] | None = None,
@@ -285,8 +281,8 @@ def estimate_noise_floor(
     frames = {}
     for done, (tid, reps) in enumerate(by_test.items(), start=1):
         record = records[tid]
-        clouds = [_read_cloud(r.cloud, f"test {tid}, repeat {r.repeat} cloud") for r in reps]
-        cloud0 = None if tid in known else _read_cloud(record.cloud_unloaded, f"test {tid}, unloaded cloud")
+        clouds = [read_scan(r.cloud, f"test {tid}, repeat {r.repeat} cloud") for r in reps]
+        cloud0 = None if tid in known else read_scan(record.cloud_unloaded, f"test {tid}, unloaded cloud")
         frames[tid] = scan_frames(
             record, cloud0, clouds, setup, kin, known.get(tid), [r.repeat for r in reps]
         )
