@@ -10,6 +10,7 @@ import pytest
 from scipy.optimize import minimize
 
 from vtestbed import clearance as cl
+from vtestbed import convex_shapes as shapes
 from vtestbed.campaigns.posesets import FeasibilityChecker
 from vtestbed.design import optimal as design
 from vtestbed.design.clearance import NominalClearance
@@ -65,9 +66,11 @@ def test_segment_distance_matches_a_numerical_minimum():
         best = min(
             minimize(gap, x0, bounds=[(0, 1), (0, 1)], tol=1e-14).fun for x0 in ([0.5, 0.5], [0, 1], [1, 0])
         )
-        assert cl.segment_segment_distance(p0, p1, q0, q1) == pytest.approx(np.sqrt(best), abs=1e-6)
+        assert shapes.segment_segment_distance(p0, p1, q0, q1) == pytest.approx(np.sqrt(best), abs=1e-6)
     # closed form: perpendicular skew segments 0.3 apart
-    assert cl.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.3], [0, 1, 0.3]) == pytest.approx(0.3)
+    assert shapes.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.3], [0, 1, 0.3]) == pytest.approx(
+        0.3
+    )
 
 
 def _shape_model():
@@ -104,8 +107,8 @@ def test_capsule_distance_matches_mujoco_geom_distance():
         for other in ("cyl", "box", "ball", "plane"):
             g = m.geom(other).id
             ref = mujoco.mj_geomDistance(m, d, cap, g, 10.0, None)
-            shape = cl.Plane("plane") if other == "plane" else geom_shape(m, d, g, other)
-            mine = float(cl.capsule_distance(c.p0, c.p1, c.radius, shape))
+            shape = shapes.Plane("plane") if other == "plane" else geom_shape(m, d, g, other)
+            mine = float(shapes.capsule_distance(c.p0, c.p1, c.radius, shape))
             if ref > 0:  # separated: both are the exact gap
                 assert mine == pytest.approx(ref, abs=2e-6), other
                 compared += 1
@@ -169,14 +172,14 @@ def test_scanner_position_is_where_the_scanner_is_placed(paper):
 def test_sight_line_blocked_by_a_crossing_wire_closed_form():
     """A wire of radius 1 mm crossing the sight line 3 mm off it: clearance 2 mm, below the 5 mm margin."""
     targets = {"+x": np.array([[1.0, 0.0, 0.0]])}
-    wire = cl.Capsule("wire", np.array([0.5, -1.0, 0.003]), np.array([0.5, 1.0, 0.003]), 0.001)
+    wire = shapes.Capsule("wire", np.array([0.5, -1.0, 0.003]), np.array([0.5, 1.0, 0.003]), 0.001)
     (entry,) = cl.sight_clearances(np.zeros(3), targets, [wire])
     assert entry.distance_m == pytest.approx(0.002, abs=1e-12)
     assert not entry.ok and entry.second == "wire"
 
 
 def test_wire_edges_exclude_the_hook_edge_and_catch_a_wire_into_the_block():
-    box = cl.Box("block", np.zeros(3), np.eye(3), np.full(3, 0.04))
+    box = shapes.Box("block", np.zeros(3), np.eye(3), np.full(3, 0.04))
     hook = np.array([-0.04, -0.04, 0.0])  # on the -x/-y edge
     out = {e.second: e for e in cl.wire_clearances(hook, [-1.0, -1.0, -1.0], [], box, 0.001)}
     assert "block (cuts into it)" not in out

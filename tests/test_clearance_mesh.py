@@ -18,12 +18,13 @@ import pytest
 import trimesh
 
 from vtestbed import clearance as cl
+from vtestbed import convex_shapes as shapes
 from vtestbed import target_mesh as tm
 from vtestbed.design.clearance import NominalClearance
 from vtestbed.errors import ClearanceError
 from vtestbed.lab import PAPER_LAB
 from vtestbed.scenario import load_scenario
-from vtestbed.target_geometry import Polytope, hook_edges, mesh_polytope
+from vtestbed.target_geometry import Polytope, hook_edges, mesh_polytope, point_segment_distance
 from vtestbed.world.clearance import geom_shape, scene_geoms, truth_clearance
 from vtestbed.world.physics import run_test_physics
 from vtestbed.world.rig import Rig
@@ -44,7 +45,7 @@ def chamfered():
     return load_scenario(CHAMFERED)
 
 
-def _box_polytope(box: cl.Box) -> Polytope:
+def _box_polytope(box: shapes.Box) -> Polytope:
     signs = np.array(list(itertools.product((-1, 1), repeat=3)), dtype=float)
     return Polytope.from_points(box.center + (signs * box.half) @ box.rotation.T)
 
@@ -65,7 +66,7 @@ def test_box_as_a_polytope_gives_the_box_numbers():
     """6 planes, 12 edges; the same signed distance and wire clearances as the Box to 1e-12."""
     rng = np.random.default_rng(4)
     rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    box = cl.Box("block", np.array([0.3, -0.2, 1.1]), rot, np.array([0.04, 0.04, 0.04]))
+    box = shapes.Box("block", np.array([0.3, -0.2, 1.1]), rot, np.array([0.04, 0.04, 0.04]))
     poly = _box_polytope(box)
     assert (len(poly.normals), len(poly.edge_a), len(poly.vertices)) == (6, 12, 8)
     probe = box.center + rng.uniform(-0.1, 0.1, (2000, 3))
@@ -147,7 +148,7 @@ def test_capsule_to_mesh_distance_matches_mujoco(target):
         mujoco.mj_forward(m, d)
         c, poly = geom_shape(m, d, cap, "cap"), geom_shape(m, d, blk, "block")
         ref = mujoco.mj_geomDistance(m, d, cap, blk, 1.0, None)
-        mine = float(cl.capsule_distance(c.p0, c.p1, c.radius, poly))
+        mine = float(shapes.capsule_distance(c.p0, c.p1, c.radius, poly))
         if ref > 0:
             assert mine == pytest.approx(ref, abs=2e-8)  # measured: 2.6e-9 m (float32 vertices)
             compared += 1
@@ -177,7 +178,7 @@ def test_hook_edge_on_the_chamfer_seat_and_cuts(target):
     np.testing.assert_allclose(hook, HOOK_EDGE_B, atol=1e-12)
     seat = hook_edges(poly, hook, cl.WIRE_MARGIN_M + 0.001)
     np.testing.assert_allclose(  # the chamfer's two long edges, 3.54 mm from the hook
-        cl.point_segment_distance(hook, poly.edge_a[seat], poly.edge_b[seat]),
+        point_segment_distance(hook, poly.edge_a[seat], poly.edge_b[seat]),
         [C / np.sqrt(2)] * 2,
         atol=1e-12,
     )

@@ -14,9 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..clearance import (
-    Capsule,
     ClearanceReport,
-    Plane,
     arm_shapes,
     base_shape,
     face_points,
@@ -27,6 +25,7 @@ from ..clearance import (
     tool_shapes,
     wire_clearances_many,
 )
+from ..convex_shapes import Capsule, Plane
 from ..errors import OutOfRangeError
 from ..lab import DEFAULT_SCANNER_DISTANCE_M, PAPER_LAB, LabSetup
 from ..researcher.kinematics import ArmKinematics

@@ -21,15 +21,13 @@ from ..clearance import (
     FIXED_TO_FLOOR,
     LINK_MARGIN_M,
     WIRE_MARGIN_M,
-    Box,
-    Capsule,
     Clearance,
     ClearanceReport,
-    Cylinder,
     face_points,
     sight_clearances,
     wire_clearances,
 )
+from ..convex_shapes import Box, Capsule, Cylinder
 from ..target_geometry import Polytope
 from . import mjcf
 from .rig import Rig
