@@ -21,6 +21,9 @@ same first two moments (Satterthwaite; exact for one degree of freedom), and ave
 same p-values. The detection test (the baseline's chi^2) is the same with ``B`` the whole
 complement of ``A``.
 
+The same draws give the tests' power against a noise-free effect (:func:`lr_power`), which the
+discrepancy benchmark uses to size effects "near the detection limit".
+
 Not included: noise in the identification tests that the repeat scans do not see (the F/T
 sensor's noise), which makes the tests reject more often than alpha on a lab whose floor is
 underestimated, with or without this reference.
