@@ -103,6 +103,43 @@ def _locked_sweep(ctx: Ctx):
     return line
 
 
+def _made_by(*markers: str):
+    """A folder holding what another command writes first (``campaign.json``, ``trials/``,
+    ``truth.json``, ``result.json``; empty files: only the names tell what a folder holds)."""
+
+    def folder(ctx: Ctx):
+        out = ctx.tmp / "other"
+        for marker in markers:
+            path = out / marker
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if marker.endswith("/"):
+                path.mkdir()
+            else:
+                path.write_text("{}")
+        return out
+
+    return folder
+
+
+def _into(command: str, folder):
+    """A case: ``vtestbed command ... --out`` a folder another command made; nothing in it changes."""
+
+    def case(ctx: Ctx):
+        out = folder(ctx)
+        before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+        path = ctx.tmp / "quick.toml"
+        if command == "sweep":
+            path.write_text(QUICK)
+        else:
+            path = scenario(ctx)
+        line = cli(ctx, [command, path, "--out", out, "--quiet"])
+        after = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.name != LOCK_FILE)
+        assert after == before
+        return line
+
+    return case
+
+
 CASES = {
     "opt-seed-negative": command("poses", "optimize", "--seed", "-1"),
     "opt-scan-seed-negative": command("scan", "--out", "{tmp}/s", "--seed", "-1"),
@@ -126,7 +163,11 @@ CASES = {
     "scheduler-not-a-url": _scheduler,
     "closed-pipe": _closed_pipe,
     "disk-full": _disk_full,
+    "report-out-not-writable": command("report", "{tmp}", "--out", "/proc/vtestbed/report.html"),
     "lock-simulate": _locked_simulate,
+    "folder-of-a-sweep": _into("simulate", _made_by("campaign.json", "trials/")),
+    "folder-of-a-simulation": _into("run", _made_by("truth.json")),
+    "folder-of-a-run": _into("sweep", _made_by("result.json")),
     "lock-sweep": _locked_sweep,
 }
 

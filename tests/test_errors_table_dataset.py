@@ -102,6 +102,21 @@ def _truth(text):
     return case
 
 
+def _gls_floor_on_few_repeats(ctx):
+    """``vtestbed identify --method gls_floor`` on a simulated dataset whose repeats.csv holds 2
+    repeats of each of 2 tests: 4 samples of the floor's 6 x 6 covariance, which needs 6."""
+    from conftest import paper_scenario_data
+
+    from vtestbed.experiment import simulate
+    from vtestbed.scenario import parse_scenario
+
+    root = ctx.tmp / "ds"
+    data = paper_scenario_data(2, 1, "floor", 3, repeats=2)
+    del data["validation"]  # identification tests only
+    simulate(parse_scenario(data), root, progress=False)
+    return cli(ctx, ["identify", root, "--method", "gls_floor", "--quiet", "--no-truth"])
+
+
 def _sweep_folder(ctx, part: bytes | None = None, manifest: str | None = None):
     """A results folder holding a campaign.json and one trials part (no sweep run)."""
     out = ctx.tmp / "sweep"
@@ -194,9 +209,12 @@ CASES = {
     "tests-cloud-escapes": row_error(1, cloud_unloaded="clouds/../../x.ply"),
     "tests-cloud-missing": _missing_cloud,
     "repeats-cloud-outside": _repeats("test_id,repeat,cloud\nT000,1,/tmp/x.ply\n"),
+    "repeats-own-scan": _repeats("test_id,repeat,cloud\nT000,1,clouds/T0_u.ply\n"),
+    "gls-floor-few-repeats": _gls_floor_on_few_repeats,
     "truth-not-json": _truth('{"stiffness_true_Nm_per_rad": [1, 2'),
     "truth-number": _truth("3.5"),
     "truth-stiffness-nan": _truth('{"stiffness_true_Nm_per_rad": [1e9, NaN]}'),
+    "truth-stiffness-range": _truth('{"stiffness_true_Nm_per_rad": [5, 1e9]}'),
     "truth-tests-list": _truth('{"stiffness_true_Nm_per_rad": [1e9], "tests": [1]}'),
     "identify-not-a-dataset": _identify_not_a_dataset,
     "sweep-part-truncated": _parquet_part,

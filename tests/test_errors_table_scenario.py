@@ -115,6 +115,29 @@ def given(name: str, text: str, *argv):
 
 
 ONE_LINK = '<robot name="x"><link name="a"/></robot>'
+TWICE = [{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 2}]
+
+
+def _far_stand_off(ctx):
+    """D11: the datasheet's far limit, 1.25 m, given to ``simulate``: refused when the file is read,
+    before any folder is made."""
+    line = cli(ctx, ["simulate", scenario(ctx, setter("scanner.distance_m", 1.25)), "--out", ctx.tmp / "out"])
+    assert not (ctx.tmp / "out").exists()
+    return line
+
+
+def _overloaded(ctx):
+    """The paper's first two tests, the second (hook_edge to ring_2) at 500 N: its Fx leaves the
+    sensor's range when the wire is tightened (the largest tension is checked against the truth
+    world in tests/test_world_physics.py)."""
+    from conftest import paper_scenario_data
+
+    data = paper_scenario_data(2, 1, "bad", 1)
+    data["load"]["tension_N"] = [200.0, 500.0]
+    path = ctx.tmp / "bad.toml"
+    path.write_text(toml(data))
+    return cli(ctx, ["simulate", path, "--out", ctx.tmp / "out", "--quiet"])
+
 
 CASES = {
     "scen-joint-limit": simulate(setter("poses.angles_deg[1]", [20, -40, -30, -40, 130, 45])),
@@ -138,6 +161,11 @@ CASES = {
     "scen-robot-path": load(setter("robot", "/etc")),
     "scen-seed": load(setter("seed", -1)),
     "scen-distance": load(setter("scanner.distance_m", 5.0)),
+    "scen-distance-block": _far_stand_off,
+    "scen-block-too-deep": load(setter("lab", {"block": {"edge_m": 0.2}})),
+    "scen-scan-at-pose": simulate(setter("scanner.distance_m", 1.18)),
+    "scen-overload": _overloaded,
+    "scen-effect-twice": load(setter("world.effects", TWICE)),
     "scen-repeats": load(setter("scanner.repeats", 2.5)),
     "scen-ft-noise": load(setter("force_sensor.noise_std", [1, 1, 1, 1, 1, -1])),
     "scen-method": load(setter("identification.method", "wls")),

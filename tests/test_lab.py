@@ -269,3 +269,36 @@ def test_a_lab_the_robot_cannot_use_is_refused_naming_the_field():
     # the UR10 with rings moved within its reach is accepted
     near = {"table": {"center_m": [0.9, 0.0], "ring_x_m": [0.6, 0.9], "ring_y_m": [-0.3, 0.3]}}
     assert len(parse_lab(near, Fields(), ur10).table.anchors) == 4
+
+
+def test_a_block_deeper_than_the_measuring_volume_has_no_stand_off():
+    """The block's corners reach edge * sqrt(3) / 2 in front of and behind its centre seen along
+    (1, 1, 1); the measuring volume is 0.3 m deep, so an edge above 0.3 / sqrt(3) = 0.1732 m fits at no
+    stand-off, and the message states that edge (rounded down to a millimetre)."""
+    from dataclasses import replace
+
+    def lab(edge):
+        return replace(PAPER_LAB, block=replace(PAPER_LAB.block, edge=edge))
+
+    assert lab(0.173).scanner_distance_range_m() == (0.25, 1.1)  # 0.1 + 0.1498, 1.25 - 0.1498
+    assert lab(0.174).scanner_distance_range_m() is None
+    with pytest.raises(
+        OutOfRangeError, match=r"no distance_m can scan a block of edge 0.2 m: .* at most 0.173 m$"
+    ):
+        lab(0.2).check_scanner_distance(0.6)
+    assert lab(0.173).check_scanner_distance(0.25) == 0.25
+    with pytest.raises(OutOfRangeError, match=r"distance_m must be a number in \[0.17, 1.18\] m, got 'far'"):
+        PAPER_LAB.check_scanner_distance("far")
+
+
+def test_the_largest_load_scale_is_where_the_first_axis_reaches_its_range():
+    sensor = ForceSensorSpec()  # 330, 330, 990 N, 30 N*m
+    base, per_newton = [0.0, 5.0, 10.0, 0.0, 0.0, 1.0], [1.0, 0.0, -1.0, 0.0, 0.0, 0.1]
+    # Fx reaches 330 at 330 N, Fz -990 at 1000 N, Tz 30 at (30 - 1) / 0.1 = 290 N: Tz binds
+    assert sensor.largest_load_scale(base, per_newton) == pytest.approx(290.0, abs=1e-9)
+    top = sensor.largest_load_scale(base, per_newton)
+    sensor.check(np.add(base, np.multiply(top - 1e-6, per_newton)))
+    with pytest.raises(SensorOverloadError, match="Tz"):
+        sensor.check(np.add(base, np.multiply(top + 1e-6, per_newton)))
+    assert sensor.largest_load_scale([0, 0, 0, 31.0, 0, 0], per_newton) == 0.0  # out of range without load
+    assert sensor.largest_load_scale(base, np.zeros(6)) == np.inf

@@ -68,7 +68,11 @@ def _broken(data, path, value):
         ),
         (("load", "anchor"), ["ring_10"], r"load.anchor\[0\]: 'ring_10' is not one of ring_1"),
         (("load", "hook"), [], r"load.hook: must not be empty"),
-        (("scanner", "distance_m"), 2.0, r"scanner.distance_m: = 2 is outside the valid range \[0.1, 1.25\]"),
+        (
+            ("scanner", "distance_m"),
+            2.0,
+            r"scanner.distance_m: = 2 m is outside the valid range \[0.17, 1.18\] m",
+        ),
         (("scanner", "noise"), "yes", r"scanner.noise: must be true or false"),
         (("force_sensor", "noise_std"), [0.1] * 5, r"force_sensor.noise_std: must be a list of 6 numbers"),
         (
@@ -180,10 +184,40 @@ def test_a_ur10_scenario_gets_a_lab_scaled_to_its_reach():
         ({"load": {"tension_N": 200.0}}, r"load.tension_N\[0\]: = 200 N .* \[1, 98.1\] N .* rated payload \(10 kg"),
         ({"lab": {"table": {"center_m": [1.6, 0.0], "ring_x_m": [1.1, 1.6, 2.1]}}},
          r"u.toml: lab.table.ring_x_m\[1\], ring_y_m\[0\]: ring_4 .* beyond the wire's reach; valid: at most 1.450 m"),
-        ({"scanner": {"distance_m": 0.05}}, r"scanner.distance_m: = 0.05 is outside the valid range \[0.1, 1.25\]"),
+        ({"scanner": {"distance_m": 0.05}}, r"scanner.distance_m: = 0.05 m is outside the valid range \[0.17, 1.18\] m"),
     ],
 )  # fmt: skip
 def test_a_ur10_scenario_outside_its_lab_names_the_field(extra, message):
     data = {"name": "u", "robot": "ur10", "poses": {"angles_deg": UR10_POSE}, **extra}
     with pytest.raises(ScenarioError, match=message):
         parse_scenario(data, "u.toml")
+
+
+def test_a_stand_off_inside_the_working_distance_but_not_the_blocks_is_refused_at_load(paper_data):
+    """D11: 1.25 m is the datasheet's far limit, but the paper's 80 mm block reaches 0.0693 m
+    (0.04 * sqrt(3)) behind its centre, so every test's scan would fail; the file is refused when
+    read, naming the file, the field, the value and the range that works (checked against the
+    scanner's own placement in tests/test_world_scanner.py)."""
+    half = 0.04 * np.sqrt(3)
+    with pytest.raises(ScenarioError) as exc:
+        parse_scenario(_broken(paper_data, ("scanner", "distance_m"), 1.25), "paper.toml")
+    assert str(exc.value).startswith(
+        "paper.toml: scanner.distance_m: = 1.25 m is outside the valid range [0.17, 1.18] m: the block's "
+        "corners must all lie within the TECHLEGO VTOP 200B's working distance [0.1, 1.25] m, and they lie "
+        f"up to {half:.4f} m in front of"
+    )
+    for ok in (1.18, 0.17):  # the range's ends, rounded inward from 0.1 + 0.0693 and 1.25 - 0.0693
+        assert parse_scenario(_broken(paper_data, ("scanner", "distance_m"), ok)).scanner.distance == ok
+    bigger = _broken(paper_data, ("lab",), {"block": {"edge_m": 0.12}})  # corners 0.1039 m out
+    with pytest.raises(
+        ScenarioError, match=r"scanner.distance_m: = 1.18 m is outside the valid range \[0.204, 1.146\] m"
+    ):
+        parse_scenario(_broken(bigger, ("scanner", "distance_m"), 1.18), "paper.toml")
+    without = _broken(
+        _broken(bigger, ("scanner", "distance_m"), KeyError), ("lab",), {"block": {"edge_m": 0.173}}
+    )
+    assert parse_scenario(without).scanner.distance == 0.6  # the lab's default fits
+    deep = _broken(paper_data, ("lab",), {"block": {"edge_m": 0.2}})
+    with pytest.raises(ScenarioError, match=r"^paper.toml: lab.block.edge_m: no scanner.distance_m can scan a block "
+                       r"of edge 0.2 m: .*; valid: a block edge of at most 0.173 m$"):  # fmt: skip
+        parse_scenario(deep, "paper.toml")

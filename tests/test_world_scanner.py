@@ -94,7 +94,7 @@ def test_block_outside_the_measuring_volume_is_refused(scene):
         shallow.cast(rig.model, rig.data)
     with pytest.raises(
         OutOfRangeError,
-        match=r"distance_m \(scanner stand-off\) = 1.3 m is outside the valid range \[0.1, 1.25\]",
+        match=r"distance_m \(scanner stand-off\) = 1.3 m is outside the valid range \[0.17, 1.18\] m",
     ):
         Scanner.place(rig.lab, state.block_pose, distance_m=1.3)
 
@@ -136,3 +136,36 @@ def test_same_seed_same_cloud(scene):
     assert len(c) != len(a) or not np.array_equal(a, c)
     perfect = scanner.scan(rig.model, rig.data, np.random.default_rng(1), ScanNoise.perfect())
     assert np.array_equal(perfect, hits.points_m)
+
+
+@pytest.mark.parametrize("edge, view", [(0.08, (1.0, 1.0, 1.0)), (0.12, (1.0, 1.5, 0.8))])
+def test_the_stand_off_range_is_where_every_corner_lies_in_the_measuring_volume(edge, view):
+    """The range the scenario and ``place`` state (D11): at its ends the placed scanner takes all
+    eight corners; 2 mm beyond them the scanner's own volume check refuses them, at the near or
+    the far limit, although the stand-off is still inside the datasheet's 0.1-1.25 m."""
+    from dataclasses import replace
+
+    from vtestbed.lab import PAPER_LAB
+
+    lab = replace(PAPER_LAB, block=replace(PAPER_LAB.block, edge=edge))
+    low, high = lab.scanner_distance_range_m(view)
+    # closed form: the corner farthest along the unit view lies edge/2 * |v|_1 / |v|_2 from the centre
+    half = edge / 2 * sum(view) / np.linalg.norm(view)
+    assert low == pytest.approx(0.1 + half, abs=1e-3) and high == pytest.approx(1.25 - half, abs=1e-3)
+    assert 0.1 + half <= low and high <= 1.25 - half  # rounded inward
+    block = homogeneous(np.eye(3), [-3.0, 0.0, 3.0])  # in the air, away from the table
+    corners = np.array([[x, y, z] for x in (0, -edge) for y in (0, -edge) for z in (0, -edge)])
+    for d in (low, high):
+        Scanner.place(lab, block, distance_m=d, view_direction_block=view)  # its own corner check passes
+    middle = Scanner.place(lab, block, distance_m=0.6, view_direction_block=view, roi_margin_m=None)
+    for d, limit in ((low - 2e-3, "closer than the near limit"), (high + 2e-3, "beyond the far limit")):
+        assert 0.1 < d < 1.25
+        moved = Scanner(
+            pose_world=middle.pose_world @ homogeneous(np.eye(3), [0.0, 0.0, 0.6 - d]), standoff_m=d
+        )
+        with pytest.raises(ScanError, match=limit):
+            moved.check_in_volume(moved.to_scanner(block[:3, 3] + corners), "block")
+        with pytest.raises(
+            OutOfRangeError, match=rf"= {d:g} m is outside the valid range \[{low:g}, {high:g}\] m"
+        ):
+            Scanner.place(lab, block, distance_m=d, view_direction_block=view)

@@ -41,7 +41,16 @@ class SlackWireError(VtestbedError, ValueError):
 
 
 class SensorOverloadError(OutOfRangeError):
-    """A wrench outside the force/torque sensor's measuring range."""
+    """A wrench outside the force/torque sensor's measuring range.
+
+    Raised by a tightened wire (:meth:`vtestbed.world.rig.Rig.tighten`), it carries the wire's
+    ``tension`` [N] and the ``wrench`` it caused; :func:`vtestbed.world.physics.run_test_physics`
+    adds ``max_tension`` [N], the largest tension whose wrench the sensor measures in that test.
+    """
+
+    tension: float | None = None
+    wrench: object = None  # (6,) array [N, N*m]
+    max_tension: float | None = None
 
 
 class ClearanceError(VtestbedError, ValueError):

@@ -15,6 +15,7 @@ separate stream (:func:`vtestbed.world.repeats.repeat_rng`), so they change no o
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import ExitStack, closing
 from dataclasses import dataclass
@@ -34,15 +35,15 @@ from .dataset import (
     repeat_cloud_path,
     write_setup,
 )
-from .errors import DatasetError
+from .errors import DatasetError, ScanError, SensorOverloadError
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
-from .lab import LabSetup
+from .lab import MIN_TENSION_N, LabSetup
 from .output_folders import RUN, require_own_kind
 from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
-from .scenario import Scenario, pose_field
+from .scenario import Scenario, load_field, pose_field
 from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
@@ -121,15 +122,45 @@ def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
         return Rig(scenario.robot, scenario.lab, truth=rig.truth, effects=scenario.effects)
 
     def run(thread_rig: Rig, job):
-        _, i, q, load = job
+        group, i, q, load = job
         test_timings = Timings()
-        phys = run_test_physics(
-            thread_rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
-            scenario.scanner.placement, test_timings, clearance="report",
-        )  # fmt: skip
+        try:
+            phys = run_test_physics(
+                thread_rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance,
+                scenario.scanner.placement, test_timings, clearance="report",
+            )  # fmt: skip
+        except (ScanError, SensorOverloadError) as exc:
+            raise _test_error(scenario, group, i, exc) from None
         return phys, test_timings
 
     return physics_in_order(make_rig, run, jobs)
+
+
+def _test_error(scenario: Scenario, group: str, index: int, exc: ScanError | SensorOverloadError):
+    """The world's refusal of one test, said in the scenario file's terms: the file, the field to
+    change, the test's id and (an overloaded sensor) the valid tension range for that test.
+
+    A scan that fails names the test's pose and ``scanner.distance_m`` (the stand-off is checked
+    for every pose when the scenario is read, :meth:`LabSetup.check_scanner_distance`; what is left
+    depends on the pose: the field of view, the scanner above the floor, the faces in sight).
+    """
+    where = f"{scenario.source}: " if scenario.source else ""
+    tid = test_id(group, index)
+    if isinstance(exc, ScanError):
+        distance = f"scanner.distance_m = {scenario.scanner.distance:g} m"
+        return ScanError(f"{where}{pose_field(group, index)} (test {tid}, {distance}): {exc}")
+    field_name = load_field(group, index, "tension_N", scenario.raw)
+    low, (high, _) = MIN_TENSION_N, scenario.lab.max_tension
+    if exc.max_tension is None:
+        valid = f"the {scenario.lab.sensor.name}'s range is exceeded"
+    elif min(exc.max_tension, high) >= low:
+        top = math.floor(min(exc.max_tension, high) * 10) / 10
+        valid = (f"valid for this test: [{low:g}, {top:g}] N (the largest tension whose wrench the sensor "
+                 "measures at this pose, hook and anchor)")  # fmt: skip
+    else:
+        valid = ("no tension is valid for this test: the sensor's range is exceeded without the wire "
+                 "(choose another pose, or a sensor of a wider lab.force_sensor.range_N_Nm)")  # fmt: skip
+    return SensorOverloadError(f"{where}{field_name} (test {tid}): {exc}; {valid}")
 
 
 def simulate(

@@ -12,7 +12,8 @@ and rules: the wire tension a test may use (:meth:`LabSetup.check_tension`, capp
 robot's rated payload, the wire's safe working load and the sensor), the measuring range of the
 force sensor (:meth:`ForceSensorSpec.check`), the scanner's stand-off
 (:attr:`LabSetup.scanner_distance`, :attr:`ScannerSpec.working_distance_m`) and a lab that fits
-the robot (:func:`lab_for_robot`, checked by :func:`check_lab`; docs/lab.md).
+the robot (:func:`lab_for_robot`, checked by :func:`check_lab`; docs/lab.md); the stand-offs at
+which the whole block lies in the scanner's measuring depth (:meth:`LabSetup.scanner_distance_range_m`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ WRENCH_UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
 DEFAULT_TENSION_N = 200.0  # the paper's wire load
 MIN_TENSION_N = 1.0  # below this a steel wire is not reliably taut
 DEFAULT_SCANNER_DISTANCE_M = 0.6  # scanner optical centre to block centre, the paper's robot
+DEFAULT_VIEW_DIRECTION = (1.0, 1.0, 1.0)  # block centre to scanner, block frame B: three faces alike
+DEFAULT_SCAN_DEPTH_M = 0.3  # depth of the measuring volume about the stand-off (the datasheet gives none)
+STANDOFF_STEP_M = 1e-3  # a stand-off range is stated in whole millimetres, rounded inward
 G_N_PER_KG = 9.81  # a rated payload [kg] as the force [N] it may put on the flange
 PAPER_RATED_PAYLOAD_KG = 60.0  # the KR60-3's (models/kuka_kr60_3/robot.toml; a test keeps them equal)
 FLOOR_HEIGHT_M = 0.0  # the floor plane of the scene; nothing of the lab goes below it
@@ -77,6 +81,22 @@ class ForceSensorSpec:
                     f"[-{limit:g}, {limit:g}] {unit} of the {self.name}"
                 )
         return wrench
+
+    def largest_load_scale(self, base, per_unit) -> float:
+        """The largest ``t >= 0`` for which ``base + t * per_unit`` (6,) [N, N*m] is in the
+        measuring range on every axis: the largest wire tension [N] the sensor can measure, given
+        the wrench ``base`` without the wire and ``per_unit`` per newton of tension (the wrench is
+        linear in the tension but for the arm's small deflection). 0 when ``base`` is out of range
+        itself, inf when the wire does not load the sensor."""
+        base, per_unit = np.asarray(base, dtype=float), np.asarray(per_unit, dtype=float)
+        limits = np.asarray(self.wrench_range, dtype=float)
+        if not np.all(np.abs(base) <= limits):
+            return 0.0
+        largest = math.inf
+        for b, u, limit in zip(base, per_unit, limits):
+            if u != 0.0:  # the axis reaches +limit or -limit, whichever it heads for
+                largest = min(largest, ((limit if u > 0 else -limit) - b) / u)
+        return float(largest)
 
 
 @dataclass(frozen=True)
@@ -237,6 +257,64 @@ class LabSetup:
             )
         return float(tension)
 
+    def block_half_depth_m(self, view_direction=DEFAULT_VIEW_DIRECTION) -> float:
+        """How far [m] the block's corners reach in front of and behind its centre along the
+        scanner's optical axis, the scanner looking at the block centre from ``view_direction``
+        (block frame B): ``edge / 2 * (|vx| + |vy| + |vz|)`` for the unit view; 0.0693 m for the
+        paper's 80 mm block seen along (1, 1, 1). A mesh target counts as its bounding cube, as
+        the scanner's placement does."""
+        v = np.abs(np.asarray(view_direction, dtype=float))
+        return self.block.edge / 2 * float(v.sum() / np.linalg.norm(v))
+
+    def scanner_distance_range_m(
+        self, view_direction=DEFAULT_VIEW_DIRECTION, depth_m: float = DEFAULT_SCAN_DEPTH_M
+    ) -> tuple[float, float] | None:
+        """The stand-offs [m] (optical centre to block centre) at which every corner of the block
+        lies within the scanner's measuring depth, for any pose: the working distance less
+        :meth:`block_half_depth_m` at each end, rounded inward to whole millimetres (0.17-1.18 m
+        for the paper's block); None when the block is deeper than the measuring volume
+        (``depth_m``, centred on the stand-off), so that no stand-off works. The field of view
+        and the scanner's place above the floor depend on the pose and are checked when the
+        scanner is placed (:meth:`vtestbed.world.scanner.Scanner.place`)."""
+        (low, high), half = self.scanner.working_distance_m, self.block_half_depth_m(view_direction)
+        if half > depth_m / 2:
+            return None
+        step = STANDOFF_STEP_M
+        inward = math.ceil((low + half) / step - 1e-9), math.floor((high - half) / step + 1e-9)
+        return round(inward[0] * step, 9), round(inward[1] * step, 9)
+
+    def check_scanner_distance(
+        self,
+        distance,
+        field_name: str = "distance_m",
+        view_direction=DEFAULT_VIEW_DIRECTION,
+        depth_m: float = DEFAULT_SCAN_DEPTH_M,
+    ) -> float:
+        """Return ``distance`` [m] or raise :class:`OutOfRangeError` naming the field, the range
+        in which every corner of the block lies in the scanner's measuring depth
+        (:meth:`scanner_distance_range_m`) and why; when no stand-off works, the largest block."""
+        scanner, half = self.scanner, self.block_half_depth_m(view_direction)
+        valid = self.scanner_distance_range_m(view_direction, depth_m)
+        if valid is None:
+            most = math.floor(self.block.edge * depth_m / 2 / half * 1e3) / 1e3
+            raise OutOfRangeError(
+                f"no {field_name} can scan a block of edge {self.block.edge:g} m: its corners lie {half:.4f} m "
+                f"in front of and behind its centre as the scanner sees it, more than the {scanner.name}'s "
+                f"measuring depth ({depth_m:g} m about the stand-off) holds; valid: a block edge of at most "
+                f"{most:g} m"
+            )
+        (low, high), (wd_low, wd_high) = valid, scanner.working_distance_m
+        if isinstance(distance, bool) or not isinstance(distance, int | float | np.floating | np.integer):
+            raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] m, got {distance!r}")
+        if not low <= distance <= high:  # also refuses NaN
+            raise OutOfRangeError(
+                f"{field_name} = {distance:g} m is outside the valid range [{low:g}, {high:g}] m: the block's "
+                f"corners must all lie within the {scanner.name}'s working distance [{wd_low:g}, {wd_high:g}] m, "
+                f"and they lie up to {half:.4f} m in front of and behind the block centre, to which the "
+                "stand-off is measured"
+            )
+        return float(distance)
+
     @property
     def block_in_flange(self) -> np.ndarray:
         """(4, 4) pose of the block frame B in the flange frame (nominal geometry)."""
@@ -344,7 +422,8 @@ def lab_for_robot(robot) -> LabSetup:
     """The paper's lab scaled to ``robot``: table, rings, block zone and scanner stand-off.
 
     Positions scale by ``robot_reach / PAPER_REACH_M`` about joint 2's axis point and move with
-    it; heights stop at the floor, the stand-off at the scanner's working distance. Scale and
+    it; heights stop at the floor, the stand-off at the range in which the scanner's measuring
+    depth holds the paper's block (:meth:`LabSetup.scanner_distance_range_m`). Scale and
     shift are rounded to 1e-9 so that the KR60 gets :data:`PAPER_LAB` exactly. The rated payload
     is the description's ``rated_payload_kg`` (None: no cap from the robot).
     """
@@ -356,7 +435,7 @@ def lab_for_robot(robot) -> LabSetup:
         moved = value + shift[axis] + (scale - 1.0) * (value - PAPER_SHOULDER_M[axis])
         return max(FLOOR_HEIGHT_M, moved) if floor else moved
 
-    t, z, (low, high) = PAPER_LAB.table, PAPER_LAB.zone, PAPER_LAB.scanner.working_distance_m
+    t, z, (low, high) = PAPER_LAB.table, PAPER_LAB.zone, PAPER_LAB.scanner_distance_range_m()
     table = TableSpec((at(t.center[0], 0), at(t.center[1], 1)), (t.size[0] * scale, t.size[1] * scale),
                       at(t.height, 2, True), tuple(at(x, 0) for x in t.ring_x), tuple(at(y, 1) for y in t.ring_y))  # fmt: skip
     zone = BlockZone(at(z.min_height, 2, True), tuple(at(v, i % 3, i % 3 == 2) for i, v in enumerate(z.box)))

@@ -157,6 +157,16 @@ def pose_field(group: str, index: int) -> str:
     return f"{'poses' if group == 'identification' else 'validation'}.angles_deg[{index}]"
 
 
+def load_field(group: str, index: int, key: str, raw: dict) -> str:
+    """The scenario-file field of a test's ``hook``, ``anchor`` or ``tension_N`` (``raw``: the
+    scenario's mapping): ``load.tension_N[i]`` when the file gives a list (one value per test, or
+    one for all), ``load.tension_N`` for a single value or the default; ``validation.`` for a
+    validation test."""
+    table = "load" if group == "identification" else "validation"
+    value = raw.get(table, {}).get(key) if isinstance(raw.get(table), dict) else None
+    return f"{table}.{key}[{index % len(value)}]" if isinstance(value, list) and value else f"{table}.{key}"
+
+
 def _per_test(value, count: int, f: Fields, name: str, check) -> tuple:
     """One value per test: a single value for all, or a list whose length is 1 or ``count``."""
     values = value if isinstance(value, list) else [value]
@@ -200,14 +210,30 @@ def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
         raise f.error("scanner.noise_params", str(exc)) from None
     spacing = table.get("spacing_m")
     return ScannerPlan(
-        distance=f.number(table.get("distance_m", lab.scanner_distance), "scanner.distance_m",
-                          *lab.scanner.working_distance_m),
+        distance=_scanner_distance(table, lab, f),
         noise=noise,
         noise_params=dict(params),
         spacing=None if spacing is None else f.number(spacing, "scanner.spacing_m", *POINT_SPACING_RANGE_M),
         noise_model=model if noise else None,
         repeats=f.integer(table.get("repeats", 0), "scanner.repeats", *REPEATS_RANGE),
     )  # fmt: skip
+
+
+def _scanner_distance(table, lab: LabSetup, f: Fields) -> float:
+    """``[scanner] distance_m`` (default: the lab's stand-off), checked by the lab's one rule
+    (:meth:`LabSetup.check_scanner_distance`: every corner of the block in the scanner's measuring
+    depth), so that a stand-off at which no test can scan the block is refused here, not at the
+    first test's scan; a block that no stand-off can scan is refused by its own field."""
+    name = "scanner.distance_m"
+    value = table.get("distance_m", lab.scanner_distance)
+    try:
+        return lab.check_scanner_distance(value, name)
+    except OutOfRangeError as exc:
+        if lab.scanner_distance_range_m() is None:
+            raise f.error("lab.block.edge_m" if lab.block.mesh is None else "target.mesh", str(exc)) from None
+        default = "" if "distance_m" in table else " (the lab's default stand-off)"
+        message = str(exc).removeprefix(name).lstrip()
+        raise f.error(name, message.replace(" m is outside", f" m{default} is outside", 1)) from None
 
 
 def _force_sensor_plan(table, f: Fields) -> ForceSensorPlan:

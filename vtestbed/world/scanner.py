@@ -18,14 +18,14 @@ geometry: ``hits = scanner.cast(model, data)`` (deterministic) then
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import mujoco
 import numpy as np
 
 from ..errors import OutOfRangeError, ScanError, check_range
-from ..lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, ScannerSpec
+from ..lab import DEFAULT_SCAN_DEPTH_M, DEFAULT_SCANNER_DISTANCE_M, LabSetup, ScannerSpec
 from ..transforms import homogeneous
 from .mjcf import BLOCK_GEOM, BLOCK_SITE, SCANNABLE_GROUP
 from .scan_noise import ScanGeometry, ScanNoise
@@ -76,7 +76,7 @@ class Scanner:
     spec: ScannerSpec = field(default_factory=ScannerSpec)
     standoff_m: float = DEFAULT_SCANNER_DISTANCE_M
     area_m: tuple[float, float] = (0.450, 0.342)
-    depth_m: float = 0.3
+    depth_m: float = DEFAULT_SCAN_DEPTH_M
     point_spacing_m: float = 0.5e-3
     window: tuple[float, float, float, float] | None = None
     block_geom: str = BLOCK_GEOM
@@ -195,6 +195,8 @@ class Scanner:
             Nominal (unloaded) pose of B in the world [m].
         distance_m : float
             Distance from the optical centre to the block centre [m]; it becomes the stand-off.
+            Every corner of the block must lie in the measuring depth
+            (:meth:`LabSetup.check_scanner_distance`: 0.17-1.18 m for the paper's block).
         view_direction_block : (3,) array
             Direction from the block centre to the scanner, in B. All three components must be
             positive so that the +x, +y and +z faces are seen; (1, 1, 1) sees them equally.
@@ -209,12 +211,17 @@ class Scanner:
         """
         block_pose_world = _check_pose(block_pose_world, "block_pose_world")
         spec = kwargs.setdefault("spec", lab.scanner)
-        distance_m = check_range("distance_m (scanner stand-off)", distance_m, *spec.working_distance_m, "m")
         view = np.asarray(view_direction_block, dtype=float)
         if view.shape != (3,) or not np.all(np.isfinite(view)) or np.linalg.norm(view) == 0:
             raise OutOfRangeError(
                 f"view_direction_block must be a non-zero 3-vector, got {np.asarray(view_direction_block).tolist()}"
             )
+        # the lab's one rule: every corner of the block within the measuring depth, at any pose
+        lab_seen = lab if spec == lab.scanner else replace(lab, scanner=spec)
+        depth = kwargs.get("depth_m", DEFAULT_SCAN_DEPTH_M)
+        distance_m = lab_seen.check_scanner_distance(
+            distance_m, "distance_m (scanner stand-off)", view, depth
+        )
         view = view / np.linalg.norm(view)
         hidden = [f"+{a}" for a, c in zip("xyz", view) if c <= np.cos(np.radians(max_incidence_deg))]
         if hidden:
