@@ -18,11 +18,9 @@ from vtestbed.lab import (
     ForceSensorSpec,
     LabSetup,
     WireSpec,
-    check_lab,
-    lab_for_robot,
     parse_lab,
-    robot_reach,
 )
+from vtestbed.robot_lab import check_lab, lab_for_robot, robot_reach
 from vtestbed.robots import load_robot
 from vtestbed.schema import Fields
 

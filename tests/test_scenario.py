@@ -168,7 +168,7 @@ UR10_POSE = [[0.0, -60.0, -60.0, -60.0, 60.0, 30.0]]  # DH, deg: in the limits, 
 
 
 def test_a_ur10_scenario_gets_a_lab_scaled_to_its_reach():
-    from vtestbed.lab import lab_for_robot
+    from vtestbed.robot_lab import lab_for_robot
 
     scenario = parse_scenario({"name": "u", "robot": "ur10", "poses": {"angles_deg": UR10_POSE}})
     scale = (0.612 + 0.5723 + np.hypot(0.1157, 0.0922)) / (0.85 + np.hypot(0.145, 0.82) + 0.17)

@@ -22,7 +22,7 @@ import pytest
 
 from vtestbed.design.clearance import NominalClearance
 from vtestbed.errors import SensorOverloadError
-from vtestbed.lab import lab_for_robot
+from vtestbed.robot_lab import lab_for_robot
 from vtestbed.robots import available_robots, load_robot
 from vtestbed.world import mjcf
 from vtestbed.world.rig import Rig

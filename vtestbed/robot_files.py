@@ -125,7 +125,7 @@ flange, where the force sensor is mounted).{(" Source: " + source_note) if sourc
 | `robot.toml` | the nominal description: modified-DH table between a base and a flange transform, limits, inertias (SI) |
 | `truth.toml` | the world's truth: true joint stiffness, damping and armature of the dynamic settle (SI) |
 | `{xml}` | the robot alone (MJCF), generated from `robot.toml` and `truth.toml` by `vtestbed models --robot {name}` |
-| `scene.xml` | the robot in its default lab (`vtestbed.lab.lab_for_robot`: the paper's, scaled to this robot's reach), generated the same way |
+| `scene.xml` | the robot in its default lab (`vtestbed.robot_lab.lab_for_robot`: the paper's, scaled to this robot's reach), generated the same way |
 
 Regenerate rather than edit: run the import again with `--force` (a test checks that the
 committed files equal the importer's and the generator's output).
@@ -156,7 +156,7 @@ committed files equal the importer's and the generator's output).
 - **Geometry seen by the scanner**: primitive capsules along the DH links (the URDF's meshes are
   not used), so ray casts hit exact surfaces.
 - **The lab**: `scene.xml` puts this robot in the paper's lab scaled to its reach about joint 2's
-  axis (`vtestbed.lab.lab_for_robot`, docs/lab.md); a scenario's `[lab]` table can move any part.
+  axis (`vtestbed.robot_lab.lab_for_robot`, docs/lab.md); a scenario's `[lab]` table can move any part.
 - **Link shells**: the KR60-3's capsule radii (`vtestbed.clearance.LINK_RADII`, 0.16 to 0.05 m) for
   the clearance checks and the scanner's view.
 """

@@ -2,7 +2,7 @@
 
 A scenario says which robot, which test poses (DH or KUKA controller angles, in degrees), which
 wire hook, ring and tension per test, the lab around the robot (``[lab]``; defaults: the paper's
-lab scaled to the robot, :func:`vtestbed.lab.lab_for_robot`),
+lab scaled to the robot, :func:`vtestbed.robot_lab.lab_for_robot`),
 where the scanner stands and how noisy it is, how noisy the force sensor is, which estimator to
 use and the seed. A parsed :class:`Scenario` owns its robot description, its lab and its noise
 models, each built once. See ``scenarios/*.toml`` and the README's field table.
@@ -252,7 +252,7 @@ def _target(table, lab: LabSetup, robot: RobotDescription, f: Fields) -> LabSetu
     from ``density_kg_m3`` (default: the lab block's) or ``mass_kg``. The lab is checked again
     (the hooks moved onto the mesh).
     """
-    from .lab import check_lab
+    from .robot_lab import check_lab
     from .target_mesh import load_mesh_target
 
     f.table(table, "target", TARGET_KEYS)

@@ -89,7 +89,7 @@ class PoseSetOptions:
 
 def pose_set_defaults(lab: LabSetup) -> PoseSetOptions:
     """The ``[campaign.pose_sets]`` defaults in ``lab``: its default wire tension and block zone
-    (:func:`vtestbed.lab.lab_for_robot`; exactly the class defaults in the paper's lab)."""
+    (:func:`vtestbed.robot_lab.lab_for_robot`; exactly the class defaults in the paper's lab)."""
     return PoseSetOptions(
         tension_N=lab.default_tension_N, min_height_m=lab.zone.min_height, box_m=tuple(lab.zone.box)
     )

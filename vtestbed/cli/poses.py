@@ -13,7 +13,7 @@ from ..design import influence, kappa, regions
 from ..design.plots import plot_cartesian, plot_influence, plot_joint_plane
 from ..errors import OutOfRangeError, ScenarioError, check_range
 from ..files import dumps, read_json
-from ..lab import lab_for_robot
+from ..robot_lab import lab_for_robot
 from ..robots import DEFAULT_ROBOT, load_robot
 from .args import NEGATIVE_HINT, SEED, integer, number, output_dir, parse_angles_deg, parse_numbers
 
@@ -69,7 +69,7 @@ def _read_poses(path: str, robot) -> np.ndarray:
 
 
 def _constraints(args, robot) -> regions.PoseConstraints:
-    """The block zone of the options, defaulting to the robot's lab's (:func:`vtestbed.lab.lab_for_robot`)."""
+    """The block zone of the options, defaulting to the robot's lab's (:func:`vtestbed.robot_lab.lab_for_robot`)."""
     zone = lab_for_robot(robot).zone
     if args.box is None:
         box = zone.box

@@ -16,7 +16,7 @@ from ..design.pool import NoFeasibleTestError, candidate_pool, kappa_selection, 
 from ..design.priors import NAMED_PRIORS, stiffness_prior
 from ..design.sequential import next_tests, noise_from_residuals
 from ..errors import DatasetError, OutOfRangeError, UnknownNameError, VtestbedError
-from ..lab import lab_for_robot
+from ..robot_lab import lab_for_robot
 from ..robots import load_robot
 from .args import SEED, integer, number, output_dir, parse_numbers
 from .poses import _emit, _point, _read_poses, _regions_and_poses

@@ -40,8 +40,8 @@ def _install(imported, directory: Path, force: bool) -> list[Path]:
     import leaves nothing; with ``--force`` the files replace the old ones one by one (each
     ``os.replace`` is atomic), and other files a user keeps in the folder stay."""
     from ..errors import DescriptionError
-    from ..lab import lab_for_robot
     from ..robot_import import FILES, write_folder
+    from ..robot_lab import lab_for_robot
     from ..robots import robot_from_file
     from ..world.mjcf import build_scene_spec, write_model_files
     from ..world.truth import TRUTH_FILE_NAME, truth_from_file
@@ -100,7 +100,7 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_load(args) -> int:
-    from ..lab import lab_for_robot
+    from ..robot_lab import lab_for_robot
     from ..world.rig import Rig
 
     robot = load_robot(args.robot)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import OutOfRangeError
 from ..files import dumps
-from ..lab import lab_for_robot
+from ..robot_lab import lab_for_robot
 from ..robots import DEFAULT_ROBOT
 from .args import (
     SEED,

@@ -6,7 +6,7 @@ commanded pose, the block at the frame fitted to the unloaded scan, the fitted f
 scans, the clouds (subsampled) moved into the base frame with the recorded scanner pose, and the
 wire along the measured force change. The wire's hook is the block hook whose moment about the
 block origin best matches the measured torque change, and the wire is drawn down to the table
-height of the robot's default lab (:func:`vtestbed.lab.lab_for_robot`; the dataset records neither
+height of the robot's default lab (:func:`vtestbed.robot_lab.lab_for_robot`; the dataset records neither
 the hook nor the ring).
 Lengths in the figure are metres, in the robot base frame.
 """
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import read_setup, read_tests
-from ..lab import lab_for_robot
 from ..ply import read_ply
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import measure_arrays
+from ..robot_lab import lab_for_robot
 from ..robots import load_robot
 from .loader import ReportError
 

@@ -25,7 +25,8 @@ import mujoco
 import numpy as np
 
 from ..clearance import LINK_RADII  # the link shells: one definition for the world and the checks
-from ..lab import LabSetup, lab_for_robot
+from ..lab import LabSetup
+from ..robot_lab import lab_for_robot
 from ..robots import RobotDescription, robot_dir
 from ..transforms import quat_wxyz
 from .effects.structure import add_hinges
@@ -294,7 +295,7 @@ def build_scene_spec(
 
 def model_files(robot: RobotDescription, truth: RobotTruth | None = None) -> dict[str, str]:
     """The XML texts of ``<robot>.xml`` and ``scene.xml`` (the robot's default lab,
-    :func:`vtestbed.lab.lab_for_robot`: the paper's for the KR60-3) as the generator produces them
+    :func:`vtestbed.robot_lab.lab_for_robot`: the paper's for the KR60-3) as the generator produces them
     (``truth``: default the robot's ``truth.toml``)."""
     truth = truth or load_truth(robot.name)
     robot_xml = build_robot_spec(robot, truth).to_xml()
