@@ -46,6 +46,17 @@ PAPER_SHOULDER_M = (0.35, 0.0, 0.815)
 PAPER_REACH_M = 0.85 + math.hypot(0.145, 0.82) + 0.17
 
 
+def _number_in_range(value, field_name: str, low: float, high: float, unit: str, why: str) -> float:
+    """``value`` as a float, or :class:`OutOfRangeError` naming the field, the range and ``why``."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+        raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] {unit}, got {value!r}")
+    if not low <= value <= high:  # also refuses NaN
+        raise OutOfRangeError(
+            f"{field_name} = {value:g} {unit} is outside the valid range [{low:g}, {high:g}] {unit}{why}"
+        )
+    return float(value)
+
+
 @dataclass(frozen=True)
 class ForceSensorSpec:
     """A 6-axis force/torque sensor between the flange and the block (ATI SI-330-30)."""
@@ -248,14 +259,8 @@ class LabSetup:
         """Return ``tension`` [N] or raise :class:`OutOfRangeError` naming the field, the range
         and which limit sets its top."""
         low, (high, source) = MIN_TENSION_N, self.max_tension
-        if isinstance(tension, bool) or not isinstance(tension, int | float | np.floating | np.integer):
-            raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] N, got {tension!r}")
-        if not low <= tension <= high:  # also refuses NaN
-            raise OutOfRangeError(
-                f"{field_name} = {tension:g} N is outside the valid range [{low:g}, {high:g}] N (taut, and "
-                f"at most {high:g} N, set by {source})"
-            )
-        return float(tension)
+        why = f" (taut, and at most {high:g} N, set by {source})"
+        return _number_in_range(tension, field_name, low, high, "N", why)
 
     def block_half_depth_m(self, view_direction=DEFAULT_VIEW_DIRECTION) -> float:
         """How far [m] the block's corners reach in front of and behind its centre along the
@@ -304,16 +309,10 @@ class LabSetup:
                 f"{most:g} m"
             )
         (low, high), (wd_low, wd_high) = valid, scanner.working_distance_m
-        if isinstance(distance, bool) or not isinstance(distance, int | float | np.floating | np.integer):
-            raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] m, got {distance!r}")
-        if not low <= distance <= high:  # also refuses NaN
-            raise OutOfRangeError(
-                f"{field_name} = {distance:g} m is outside the valid range [{low:g}, {high:g}] m: the block's "
-                f"corners must all lie within the {scanner.name}'s working distance [{wd_low:g}, {wd_high:g}] m, "
-                f"and they lie up to {half:.4f} m in front of and behind the block centre, to which the "
-                "stand-off is measured"
-            )
-        return float(distance)
+        why = (f": the block's corners must all lie within the {scanner.name}'s working distance "
+               f"[{wd_low:g}, {wd_high:g}] m, and they lie up to {half:.4f} m in front of and behind the block "
+               "centre, to which the stand-off is measured")  # fmt: skip
+        return _number_in_range(distance, field_name, low, high, "m", why)
 
     @property
     def block_in_flange(self) -> np.ndarray:
