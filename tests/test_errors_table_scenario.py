@@ -169,6 +169,9 @@ CASES = {
     "scen-repeats": load(setter("scanner.repeats", 2.5)),
     "scen-ft-noise": load(setter("force_sensor.noise_std", [1, 1, 1, 1, 1, -1])),
     "scen-method": load(setter("identification.method", "wls")),
+    "scen-gls-few-repeats": simulate(
+        lambda d: (setter("identification.method", "gls_floor")(d), setter("scanner.repeats", 2)(d))
+    ),
     "scen-not-utf8": simulate(text=b'name = "kr\xe960"\n'),
     "scen-not-toml": load(text=b"name = kr60\n"),
     "scen-missing": _missing_file,

@@ -314,6 +314,8 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         val_load = _load_plan(load_part, len(val_poses), lab, f, "validation.")
     else:
         val_poses, val_load = np.zeros((0, robot.dof)), LoadPlan((), (), ())
+    if method == "gls_floor":
+        _check_floor_samples(scanner.repeats, len(poses) + len(val_poses), f)
     return Scenario(
         name=name,
         description=str(data.get("description", "")),
@@ -331,6 +333,21 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         source=Path(source) if source else None,
         raw=data,
     )
+
+
+def _check_floor_samples(repeats: int, n_tests: int, f: Fields) -> None:
+    """``gls_floor`` needs a noise floor of at least ``MIN_FLOOR_SAMPLES`` repeat-scan samples
+    (``repeats`` per test, every test): refused here, not after the whole simulation."""
+    from .researcher.measure import MIN_FLOOR_SAMPLES  # here: the researcher side loads only for it
+
+    if repeats * n_tests < MIN_FLOOR_SAMPLES:
+        least = -(-MIN_FLOOR_SAMPLES // n_tests)
+        raise f.error(
+            "scanner.repeats",
+            f"= {repeats} gives {repeats * n_tests} repeat-scan samples over {n_tests} test"
+            f"{'s' * (n_tests != 1)}; identification.method 'gls_floor' needs at least {MIN_FLOOR_SAMPLES} "
+            f"for its 6 x 6 noise-floor covariance: valid: repeats >= {least}, or method 'fgls'",
+        )
 
 
 def read_scenario_file(path: str | Path, what: str = "scenario") -> dict:

@@ -247,8 +247,8 @@ class Scanner:
         if position[2] <= floor:
             raise ScanError(
                 f"scanner placed at z = {position[2]:.3f} m, below the {'table top' if over_table else 'floor'} "
-                f"(z = {floor:g} m): choose another view_direction_block or a shorter distance_m "
-                f"(now {distance_m:g} m)"
+                f"(z = {floor:g} m): choose a shorter distance_m (now {distance_m:g} m) or a pose that holds "
+                "the block higher (or, calling Scanner.place, another view_direction_block)"
             )
         scanner = cls(pose_world=pose, standoff_m=distance_m, **kwargs)
         corners = np.array([[x, y, z] for x in (0, -edge) for y in (0, -edge) for z in (0, -edge)])
