@@ -148,3 +148,37 @@ def test_code_fingerprint_covers_the_campaigns_robot_only(tmp_path, monkeypatch)
         (models / "kuka_kr60_3" / "truth.toml").read_text() + "\n"
     )
     assert code_fingerprint("kuka_kr60_3") != kr60
+
+
+def test_a_sweeps_overloaded_test_is_named_as_simulate_names_it(tmp_path):
+    """A campaign's physics (``montecarlo.prepare``) refuses an overloaded test in the scenario
+    file's terms, word for word as ``vtestbed simulate`` does: the file, ``load.tension_N[1]``,
+    the test's id and the largest tension the truth world's sensor measures there (the reference:
+    ``run_test_physics``' own ``max_tension``, floored to 0.1 N)."""
+    import math
+
+    from conftest import paper_scenario_data
+
+    from vtestbed.campaigns.montecarlo import prepare
+    from vtestbed.errors import SensorOverloadError
+    from vtestbed.scenario import parse_scenario
+    from vtestbed.world.physics import run_test_physics
+    from vtestbed.world.rig import Rig
+    from vtestbed.world.truth import load_truth
+
+    data = paper_scenario_data(2, 1, "overload", 1)
+    data["load"]["tension_N"] = [200.0, 500.0]
+    scenario = parse_scenario(data, tmp_path / "sweep.toml")
+    with pytest.raises(SensorOverloadError) as swept:
+        prepare(scenario)
+    rig = Rig(scenario.robot, scenario.lab, truth=load_truth(scenario.robot_name))
+    with pytest.raises(SensorOverloadError) as direct:
+        load = scenario.load
+        run_test_physics(
+            rig, scenario.poses[1], load.hooks[1], load.anchors[1], 500.0, scenario.scanner.distance
+        )
+    top = math.floor(direct.value.max_tension * 10) / 10
+    message = str(swept.value)
+    assert message.startswith(f"{tmp_path / 'sweep.toml'}: load.tension_N[1] (test T002): sensor wrench")
+    assert message.endswith(f"valid for this test: [1, {top:g}] N (the largest tension whose wrench the "
+                            "sensor measures at this pose, hook and anchor)")  # fmt: skip

@@ -130,13 +130,13 @@ def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
                 scenario.scanner.placement, test_timings, clearance="report",
             )  # fmt: skip
         except (ScanError, SensorOverloadError) as exc:
-            raise _test_error(scenario, group, i, exc) from None
+            raise test_error(scenario, group, i, exc) from None
         return phys, test_timings
 
     return physics_in_order(make_rig, run, jobs)
 
 
-def _test_error(scenario: Scenario, group: str, index: int, exc: ScanError | SensorOverloadError):
+def test_error(scenario: Scenario, group: str, index: int, exc: ScanError | SensorOverloadError):
     """The world's refusal of one test, said in the scenario file's terms: the file, the field to
     change, the test's id and (an overloaded sensor) the valid tension range for that test.
 

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, scanner_pose_as_recorded
-from ..experiment import dataset_setup, test_id
+from ..errors import ScanError, SensorOverloadError
+from ..experiment import dataset_setup, test_error, test_id
 from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
@@ -245,10 +246,13 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
         ]
     rows = []
     for group, i, q, load in jobs:
-        phys = run_test_physics(
-            rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance, placement,
-            label=pose_field(group, i),
-        )  # fmt: skip
+        try:
+            phys = run_test_physics(
+                rig, q, load.hooks[i], load.anchors[i], load.tensions[i], scenario.scanner.distance, placement,
+                label=pose_field(group, i),
+            )  # fmt: skip
+        except (ScanError, SensorOverloadError) as exc:  # in the scenario's terms, as `simulate` says it
+            raise test_error(scenario, group, i, exc) from None
         rays = phys.scanner.ray_directions
         box = _GridBox.of(phys.scanner)
         if not np.array_equal(_ray_grid(box.step, box.ku, box.kv), rays):
