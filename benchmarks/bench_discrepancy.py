@@ -336,7 +336,10 @@ def target_lambda_estimated_floor(s: dict, power: float) -> float:
     """The noise-free noncentrality at which the naming test of ``strength``'s record ``s`` has
     power ``power`` against the trials' estimated floor: the effect's pattern at ``s`` scaled by
     ``a`` until :func:`estimated_floor_power` is ``power``; then ``a^2 lambda``."""
-    a = brentq(lambda a: estimated_floor_power(s, a) - power, 1e-3, 1e3, xtol=1e-4)
+    low, high = 1e-3, 1e3
+    while estimated_floor_power(s, high) < power and high < 1e9:  # a pattern far below the noise
+        low, high = high, high * 1e3
+    a = brentq(lambda a: estimated_floor_power(s, a) - power, low, high, xtol=1e-4 * low)
     return float(a * a * s["lambda"])
 
 
