@@ -297,12 +297,6 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     effects = parse_effects(world.get("effects", []), f)
     ident = f.table(data.get("identification", {}), "identification", ("method",))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
-    if method == "gls_floor" and scanner.repeats < 2:
-        raise f.error(
-            "identification.method",
-            f"'gls_floor' weights with the repeat-scan noise floor and needs [scanner] repeats >= 2 "
-            f"(got {scanner.repeats}); 'fgls' needs none",
-        )
     val = f.table(
         data.get("validation", {}), "validation", ("convention", "angles_deg", "hook", "anchor", "tension_N")
     )
@@ -336,8 +330,15 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
 
 
 def _check_floor_samples(repeats: int, n_tests: int, f: Fields) -> None:
-    """``gls_floor`` needs a noise floor of at least ``MIN_FLOOR_SAMPLES`` repeat-scan samples
-    (``repeats`` per test, every test): refused here, not after the whole simulation."""
+    """``gls_floor`` needs repeat scans, at least 2 per test, and a noise floor of at least
+    ``MIN_FLOOR_SAMPLES`` repeat-scan samples (``repeats`` per test, every test): refused here,
+    not after the whole simulation."""
+    if repeats < 2:
+        raise f.error(
+            "identification.method",
+            f"'gls_floor' weights with the repeat-scan noise floor and needs [scanner] repeats >= 2 "
+            f"(got {repeats}); 'fgls' needs none",
+        )
     from .researcher.measure import MIN_FLOOR_SAMPLES  # here: the researcher side loads only for it
 
     if repeats * n_tests < MIN_FLOOR_SAMPLES:
