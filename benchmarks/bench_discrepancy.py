@@ -305,9 +305,9 @@ def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
     if not family:
         return {"lambda": base.chi2, "df": base.dof, "test": "detection", "level": ALPHA, "label": None}
     family = identifiable(ctx, white, family, base.compliance)  # the parameters the search tests
-    fits = [(base.chi2 - (fit := fit_model(ctx, white, [c])).chi2, c, fit.rank - base.rank) for c in family]
-    lam, cand, df = max(fits, key=lambda x: x[0])
-    fit = fit_model(ctx, white, [cand])
+    fits = [(base.chi2 - (fit := fit_model(ctx, white, [c])).chi2, c, fit) for c in family]
+    lam, cand, fit = max(fits, key=lambda x: x[0])
+    df = fit.rank - base.rank
     # what lr_power needs: the residual in the true floor's coordinates (noise N(0, I)), and the
     # trials' floor sample count (REPEATS of every test, validation tests included)
     signal = white(base.residuals.reshape(-1)) * math.sqrt(white.inflation)
