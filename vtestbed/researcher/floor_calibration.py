@@ -131,6 +131,11 @@ def lr_p_value(lr: float, design: np.ndarray, tested: np.ndarray, df: int, nu: i
 def lr_critical_value(design: np.ndarray, tested: np.ndarray, df: int, nu: int, level: float) -> float:
     """The likelihood ratio at which :func:`lr_p_value` equals ``level`` (the test rejects above it)."""
     _, c = _tested_directions(floor_whiteners(int(nu)), design, tested, df)
+    return _critical_value(c, df, level)
+
+
+def _critical_value(c: np.ndarray, df: int, level: float) -> float:
+    """Where the tail of the draws' weighted chi^2 (``c``: :func:`_tested_directions`) is ``level``."""
     s1, s2 = np.trace(c, axis1=1, axis2=2), np.sum(c**2, axis=(1, 2))
     low, high = float(chdtri(df, level)) / 2, float(chdtri(df, level)) * 2
     while _tail(high, s1, s2) > level:  # the estimated floor widens the tail: look further out
@@ -169,7 +174,7 @@ def lr_power(
         return 0.0
     g = floor_whiteners(int(nu))
     q, c = _tested_directions(g, design, tested, df)
-    crit = lr_critical_value(design, tested, df, nu, level)
+    crit = _critical_value(c, df, level)  # lr_critical_value, on the directions already computed
     shift = np.einsum("dnk,dn->dk", q, _per_test(g, np.asarray(residual, float)[:, None])[..., 0])
     z = np.random.default_rng([SEED, int(nu), int(df)]).standard_normal((len(g), samples, q.shape[-1]))
     stat = np.sum((shift[:, None, :] + z @ np.swapaxes(np.linalg.cholesky(c), 1, 2)) ** 2, axis=-1)
