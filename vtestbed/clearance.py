@@ -20,7 +20,7 @@ import numpy as np
 
 from .convex_shapes import Box, Capsule, Cylinder, Plane, capsule_distance, segment_segment_distance
 from .errors import ClearanceError, UnknownNameError
-from .lab import LabSetup
+from .lab import DEFAULT_VIEW_DIRECTION, LabSetup
 from .target_geometry import Polytope, hook_edges, hook_faces, mesh_polytope
 
 LINK_MARGIN_M = 0.010  # links, sensor and block against the table top and the floor
@@ -87,7 +87,7 @@ def table_shape(lab: LabSetup) -> Box:
     )
 
 
-def scanner_position(block_pose, edge: float, distance_m: float, view_direction_block=(1.0, 1.0, 1.0)):
+def scanner_position(block_pose, edge: float, distance_m: float, view_direction_block=DEFAULT_VIEW_DIRECTION):
     """The scanner's optical centre [m] as :meth:`vtestbed.world.scanner.Scanner.place` puts it."""
     b = np.asarray(block_pose, dtype=float)
     view = np.asarray(view_direction_block, dtype=float)

@@ -82,10 +82,13 @@ class ScanError(VtestbedError, ValueError):
     """A scan that cannot deliver the block frame (block out of view, faces missing)."""
 
 
-def check_range(field: str, value: float, low: float, high: float, unit: str = "") -> float:
-    """Return ``value`` if ``low <= value <= high``, else raise :class:`OutOfRangeError`."""
+def check_range(field: str, value: float, low: float, high: float, unit: str = "", why: str = "") -> float:
+    """Return ``value`` if ``low <= value <= high``, else raise :class:`OutOfRangeError` (its
+    message ends with ``why``, the reason for the range, if given)."""
     value = float(value)
     if not (low <= value <= high):  # also rejects NaN
         u = f" {unit}" if unit else ""
-        raise OutOfRangeError(f"{field} = {value:g}{u} is outside the valid range [{low:g}, {high:g}]{u}")
+        raise OutOfRangeError(
+            f"{field} = {value:g}{u} is outside the valid range [{low:g}, {high:g}]{u}{why}"
+        )
     return value

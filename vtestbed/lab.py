@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .errors import OutOfRangeError, SensorOverloadError, UnknownNameError
+from .errors import OutOfRangeError, SensorOverloadError, UnknownNameError, check_range
 from .transforms import homogeneous
 
 WRENCH_AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
@@ -47,14 +47,11 @@ PAPER_REACH_M = 0.85 + math.hypot(0.145, 0.82) + 0.17
 
 
 def _number_in_range(value, field_name: str, low: float, high: float, unit: str, why: str) -> float:
-    """``value`` as a float, or :class:`OutOfRangeError` naming the field, the range and ``why``."""
+    """``value`` as a float, or :class:`OutOfRangeError` naming the field, the range and ``why``
+    (:func:`~vtestbed.errors.check_range`, after refusing what is not a number)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
         raise OutOfRangeError(f"{field_name} must be a number in [{low:g}, {high:g}] {unit}, got {value!r}")
-    if not low <= value <= high:  # also refuses NaN
-        raise OutOfRangeError(
-            f"{field_name} = {value:g} {unit} is outside the valid range [{low:g}, {high:g}] {unit}{why}"
-        )
-    return float(value)
+    return check_range(field_name, value, low, high, unit, why)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,13 @@ import mujoco
 import numpy as np
 
 from ..errors import OutOfRangeError, ScanError, check_range
-from ..lab import DEFAULT_SCAN_DEPTH_M, DEFAULT_SCANNER_DISTANCE_M, LabSetup, ScannerSpec
+from ..lab import (
+    DEFAULT_SCAN_DEPTH_M,
+    DEFAULT_SCANNER_DISTANCE_M,
+    DEFAULT_VIEW_DIRECTION,
+    LabSetup,
+    ScannerSpec,
+)
 from ..transforms import homogeneous
 from .mjcf import BLOCK_GEOM, BLOCK_SITE, SCANNABLE_GROUP
 from .scan_noise import ScanGeometry, ScanNoise
@@ -179,7 +185,7 @@ class Scanner:
         lab: LabSetup,
         block_pose_world: np.ndarray,
         distance_m: float = DEFAULT_SCANNER_DISTANCE_M,
-        view_direction_block=(1.0, 1.0, 1.0),
+        view_direction_block=DEFAULT_VIEW_DIRECTION,
         up_world=(0.0, 0.0, 1.0),
         roi_margin_m: float | None = 0.015,
         max_incidence_deg: float = 70.0,
