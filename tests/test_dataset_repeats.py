@@ -172,7 +172,8 @@ def test_replacing_a_stale_dataset_removes_its_repeats(datasets, tmp_path):
 def _with_repeats(datasets, tmp_path, text: str) -> Path:
     d = tmp_path / "d"
     shutil.copytree(datasets[1], d)
-    ply.write_ply(d / "clouds" / "extra.ply", np.zeros((3, 3)))
+    for name in ("extra.ply", "extra2.ply"):
+        ply.write_ply(d / "clouds" / name, np.zeros((3, 3)))
     (d / REPEATS_FILE).write_text(text)
     return d
 
@@ -184,8 +185,15 @@ def _with_repeats(datasets, tmp_path, text: str) -> Path:
          r"repeats.csv line 3 \(test 'T009'\): test_id 'T009' is not a test of .*tests.csv"),
         ("T001,1.5,clouds/extra.ply\n", r"repeats.csv line 2 \(test 'T001'\): repeat must be an integer >= 1 .*'1.5'"),
         ("T001,0,clouds/extra.ply\n", r"line 2 .*repeat must be an integer >= 1"),
-        ("T001,1,clouds/extra.ply\nT002,1,clouds/extra.ply\nT001,1,clouds/extra.ply\n",
+        ("T001,1,clouds/extra.ply\nT002,1,clouds/extra2.ply\nT001,1,clouds/extra.ply\n",
          r"repeats.csv line 4 \(test 'T001'\): repeat 1 of test 'T001' is listed twice \(first on line 2\)"),
+        ("T001,1,clouds/extra.ply\nT001,2,clouds/extra2.ply\nT001,3,clouds/extra.ply\n",
+         r"repeats.csv line 4 \(test 'T001'\): cloud 'clouds/extra.ply' is already repeat 1 of test 'T001' "
+         r"\(line 2\); every repeat must be its own scan of the unloaded block, in its own file "
+         r"\(e.g. clouds/T001_repeat3.ply\)$"),
+        ("T001,1,clouds/extra.ply\nT002,1,clouds/../clouds/extra.ply\n",
+         r"repeats.csv line 3 \(test 'T002'\): cloud 'clouds/../clouds/extra.ply' is already repeat 1 of "
+         r"test 'T001' \(line 2\)"),
         ("T001,1,../r0/clouds/T001_unloaded.ply\n",
          r"line 2 .*cloud '../r0/clouds/T001_unloaded.ply' must be a path inside the dataset folder"),
         ("T001,1,\n", r"line 2 .*cloud '' must be a path inside the dataset folder"),
@@ -214,6 +222,19 @@ def test_a_repeat_hard_linked_to_the_tests_own_scan_is_refused(datasets, tmp_pat
     (d / "clouds" / "copy.ply").hardlink_to(d / "clouds" / "T003_loaded.ply")
     with pytest.raises(DatasetError, match=r"cloud 'clouds/copy.ply' is the test's own loaded scan"):
         read_repeats(d)
+
+
+def test_a_repeat_hard_linked_to_another_repeat_is_refused(datasets, tmp_path):
+    """Two repeats of one scan would enter the noise floor as an exact zero (a floor too small)."""
+    d = _with_repeats(
+        datasets, tmp_path, "test_id,repeat,cloud\nT003,1,clouds/extra.ply\nT003,2,clouds/b.ply\n"
+    )
+    (d / "clouds" / "b.ply").hardlink_to(d / "clouds" / "extra.ply")
+    with pytest.raises(DatasetError, match=r"line 3 .*'clouds/b.ply' is already repeat 1 of test 'T003'"):
+        read_repeats(d)
+    (d / "clouds" / "b.ply").unlink()
+    ply.write_ply(d / "clouds" / "b.ply", np.ones((3, 3)))  # its own scan: accepted
+    assert [r.repeat for r in read_repeats(d)] == [1, 2]
 
 
 def test_hand_written_repeats_csv_reads_and_missing_columns_are_named(datasets, tmp_path):

@@ -210,6 +210,7 @@ CASES = {
     "tests-cloud-missing": _missing_cloud,
     "repeats-cloud-outside": _repeats("test_id,repeat,cloud\nT000,1,/tmp/x.ply\n"),
     "repeats-own-scan": _repeats("test_id,repeat,cloud\nT000,1,clouds/T0_u.ply\n"),
+    "repeats-cloud-twice": _repeats("test_id,repeat,cloud\nT000,1,clouds/r.ply\nT001,1,clouds/r.ply\n"),
     "gls-floor-few-repeats": _gls_floor_on_few_repeats,
     "truth-not-json": _truth('{"stiffness_true_Nm_per_rad": [1, 2'),
     "truth-number": _truth("3.5"),

@@ -327,7 +327,7 @@ def _read_repeat_rows(root: Path, tests, check_files: bool) -> list[RepeatRecord
     checked against: a test it lists, a cloud that is not that test's own scan (None: neither)."""
     path = root / REPEATS_FILE
     rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
-    records, first_line = [], {}
+    records, first_line, seen = [], {}, {}
     for line, row in rows:
         tid = row.get("test_id") or ""
         where = f"{path} line {line} (test {tid!r})"
@@ -345,14 +345,14 @@ def _read_repeat_rows(root: Path, tests, check_files: bool) -> list[RepeatRecord
                 f"{where}: repeat {repeat} of test {tid!r} is listed twice (first on line {first_line[tid, repeat]})"
             )
         first_line[tid, repeat] = line
-        cloud = checks.cloud_path(root, row["cloud"], where, "cloud", f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply")
+        example = f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply"
+        cloud = checks.cloud_path(root, row["cloud"], where, "cloud", example)
         if check_files and not cloud.is_file():
             raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
         if tests is not None:
             own = {"unloaded": tests[tid].cloud_unloaded, "loaded": tests[tid].cloud_loaded}
-            checks.not_own_scan(
-                cloud, own, root / TESTS_FILE, where, row["cloud"], f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply"
-            )
+            checks.not_own_scan(cloud, own, root / TESTS_FILE, where, row["cloud"], example)
+        checks.not_listed_twice(seen, cloud, (tid, repeat, line), where, row["cloud"], example)
         records.append(RepeatRecord(tid, repeat, cloud))
     return records
 
@@ -372,7 +372,7 @@ def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecor
     DatasetError
         Naming the file, the line and the field: a test_id not in tests.csv, a repeat that is not
         an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing,
-        a cloud that is the test's own unloaded or loaded scan.
+        a cloud that is the test's own unloaded or loaded scan or another repeat's.
     """
     root = Path(root)
     if not (root / REPEATS_FILE).is_file():

@@ -170,3 +170,25 @@ def not_own_scan(cloud: Path, own: dict, tests_file: Path, where: str, text: str
                 f"{where}: cloud {text!r} is the test's own {state} scan (cloud_{state} in {tests_file}); "
                 f"a repeat must be another scan of the unloaded block, in its own file (e.g. {example})"
             )
+
+
+def not_listed_twice(seen: dict, cloud: Path, row: tuple, where: str, text: str, example: str) -> None:
+    """A repeat scan (``cloud``; ``row``: its test id, repeat and line) must not be another
+    repeat's file too (``seen``: the files so far -> their row): two repeats of one scan enter the
+    noise floor as an exact zero, which shrinks it without looking wrong as a number."""
+    key = _file_key(cloud)
+    if key in seen:
+        tid, repeat, line = seen[key]
+        raise DatasetError(
+            f"{where}: cloud {text!r} is already repeat {repeat} of test {tid!r} (line {line}); every "
+            f"repeat must be its own scan of the unloaded block, in its own file (e.g. {example})"
+        )
+    seen[key] = row
+
+
+def _file_key(path: Path):
+    try:
+        stat = path.stat()  # a hard link to the same scan is the same file
+        return stat.st_dev, stat.st_ino
+    except OSError:  # missing: the file checks name it
+        return path.resolve()
