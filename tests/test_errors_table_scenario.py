@@ -190,6 +190,12 @@ CASES = {
     ),
     "manifest-missing": given("lab.toml", "", "dataset", "import", "{tmp}/none.toml", "--out", "{tmp}/o"),
     "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
+    "diagnose-candidate-twice": given(
+        "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"
+    ),
+    "diagnose-candidate-empty": given(
+        "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,"
+    ),
 }
 
 

@@ -38,7 +38,7 @@ from .diagnose import (
 )
 from .kinematics import ArmKinematics
 from .measure import load_measurements
-from .model_file import baseline_statics, default_candidates, model_file, require_outside
+from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
 from .noise_floor import estimate_noise_floor
 
 
@@ -63,6 +63,7 @@ def diagnose(
     """
     require_rank(rank_by)  # before any work: the dataset's own errors come after
     names = default_candidates(statics) if names is None else tuple(names)
+    require_names(names, "--candidates")
     require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)

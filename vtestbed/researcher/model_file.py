@@ -40,6 +40,23 @@ def require_outside(kind: str, terms, where: str) -> None:
         )
 
 
+def require_names(names, where: str) -> None:
+    """Candidate names as a user lists them: each a known name, listed once (a name given twice
+    would count twice in the search's Bonferroni family and stand in for itself)."""
+    valid = CLEAN_WORLD_CANDIDATE_NAMES + CANDIDATE_NAMES + OPTIONAL_CANDIDATE_NAMES
+    if not names or not all(names):
+        raise OutOfRangeError(
+            f"{where}: {','.join(names)!r} holds an empty name; give comma-separated candidate names, "
+            f"each one of {', '.join(sorted(valid))}"
+        )
+    unknown = [n for n in names if n not in valid]
+    if unknown:
+        raise UnknownNameError("candidate", unknown[0], valid)
+    twice = next((n for k, n in enumerate(names) if n in names[:k]), None)
+    if twice is not None:
+        raise OutOfRangeError(f"{where}: candidate {twice!r} is listed twice; list each candidate once")
+
+
 def baseline_statics(kind: str, kin, setup):
     """The base model's statics: ``exact`` (the clean world's, :mod:`.statics`) or the paper's."""
     if kind not in STATICS:
