@@ -106,8 +106,15 @@ def test_identification_uses_the_identification_group_only(robot, lab):
     res = identify_measurements(tests[:3] + junk + tests[3:], joint_names=robot.joint_names)
     np.testing.assert_allclose(res.stiffness, K_TABLE5, rtol=1e-9)
     assert res.n_tests == 6 and res.joint_names == robot.joint_names
-    with pytest.raises(DatasetError, match="the dataset has no test in group 'identification'"):
+    with pytest.raises(DatasetError, match="^the dataset has no test in group 'identification'"):
         identify_measurements(junk)
+    with pytest.raises(DatasetError) as err:  # a dataset's: the file and the column
+        identify_measurements(junk, source="lab/ds")
+    assert str(err.value) == (
+        "lab/ds/tests.csv: the dataset has no test in group 'identification' (column group: "
+        "identification or validation; its 3 tests are all validation): at least one identification "
+        "test is needed"
+    )
 
 
 @pytest.fixture(scope="module")

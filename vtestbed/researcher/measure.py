@@ -230,7 +230,12 @@ def identify_measurements(
     """
     tests = [m for m in measurements if m.group == "identification"]
     if not tests:
-        raise DatasetError("the dataset has no test in group 'identification'")
+        where = f"{Path(source) / 'tests.csv'}: " if source else ""
+        raise DatasetError(
+            f"{where}the dataset has no test in group 'identification' (column group: identification or "
+            f"validation; its {len(measurements)} tests are all validation): at least one identification "
+            "test is needed"
+        )
     ids = tuple(m.test_id for m in tests)
     cov = None
     if method == "gls_floor":
