@@ -162,7 +162,7 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
         )
     sensor_name, sensor_range = checks.force_sensor(data["force_sensor"], path)
     return DatasetSetup(
-        robot=checks.string(data["robot"], path, "robot"),
+        robot=checks.robot_name(data["robot"], path),
         angle_convention=data["angle_convention"],
         block_in_flange=checks.rigid_transform(data["block_in_flange"], path, "block_in_flange"),
         sensor_in_flange=checks.rigid_transform(data["sensor_in_flange"], path, "sensor_in_flange"),

@@ -40,6 +40,20 @@ def string(value, where: str, field: str) -> str:
     return value
 
 
+def robot_name(value, where: str) -> str:
+    """A robot vtestbed describes (a folder of models/ with a robot.toml), checked where the
+    dataset names it, not later by the first reader that loads the robot."""
+    from .robots import available_robots
+
+    name, known = string(value, where, "robot"), available_robots()
+    if name not in known:
+        raise DatasetError(
+            f"{where}: robot {name!r} is not a robot vtestbed describes; valid names: {', '.join(known)} "
+            "(models/NAME/robot.toml; 'vtestbed robot import' adds one from a URDF)"
+        )
+    return name
+
+
 def rigid_transform(value, where: str, field: str) -> np.ndarray:
     """A 4x4 rigid transform (rows of numbers, orthonormal rotation, last row 0 0 0 1, translation
     within :data:`MOUNT_OFFSET_MAX_M` of the flange) [m]."""
