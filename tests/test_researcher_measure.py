@@ -2,6 +2,7 @@
 the displacement against MuJoCo's true block motion, the Jacobian against MuJoCo's, and the
 model's prediction J K^-1 J^T F written out."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -13,7 +14,7 @@ from vtestbed.dataset import DatasetSetup, write_setup
 from vtestbed.dataset import TestRecord as Record  # under their own names pytest would try to
 from vtestbed.dataset import TestWriter as Writer  # collect them as test classes
 from vtestbed.errors import DatasetError, JointLimitError, ScanError
-from vtestbed.ply import write_ply
+from vtestbed.ply import read_ply, write_ply
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.measure import TestMeasurement as Measurement  # not a test class
 from vtestbed.researcher.measure import (
@@ -201,6 +202,34 @@ def test_missing_clouds_and_empty_datasets_are_named(tmp_path, lab, robot):
         measure_test(bad_pose, _setup(lab), kin)
 
 
+def test_a_cloud_in_mm_and_a_cloud_without_the_block_name_the_file(tmp_path, lab, robot):
+    """A lab's scan in mm read as m (the fit alone would say only "block not found"), and a cloud
+    that misses the block: both errors name the test, the state and the file."""
+    rng = np.random.default_rng(2)
+    (tmp_path / "clouds").mkdir()
+    mm = write_ply(tmp_path / "clouds" / "T005_loaded.ply", rng.normal([0, 0, 600.0], 40.0, (200, 3)))
+    far = write_ply(tmp_path / "clouds" / "T005_unloaded.ply", rng.normal([3.0, 0, 2.0], 0.1, (200, 3)))
+    kin = ArmKinematics(robot, lab.block_in_flange)
+    record = Record(
+        "T005", "identification", np.array(POSE_DEG), np.zeros(6), np.zeros(6), np.eye(4), far, mm
+    )
+    with pytest.raises(ScanError) as exc:
+        measure_test(record, _setup(lab), kin)
+    reach = np.abs(read_ply(mm)).max()
+    assert 600 < reach < 1000 and str(exc.value) == (
+        f"test T005, loaded cloud {mm}: coordinates reach {reach:.4g} m, beyond 50 m: is the file in mm? "
+        "A dataset's clouds are in m (vtestbed dataset import --cloud-units mm converts them)"
+    )
+    with pytest.raises(ScanError) as exc:
+        measure_test(replace(record, cloud_loaded=far), _setup(lab), kin)
+    assert str(exc.value).startswith(
+        f"test T005, unloaded cloud {far}: block not found: only 0 of 200 points"
+    )
+    assert str(exc.value).endswith(
+        "the nominal pose is wrong (the pose's angles and their convention, the scanner's pose)"
+    )
+
+
 def _raw_ply(path, pts) -> Path:
     """A binary PLY as a scanner may write it, NaN and inf included (write_ply refuses them)."""
     header = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
@@ -216,7 +245,7 @@ def test_non_finite_points_name_the_test_and_the_file(tmp_path, lab, robot):
     pts = np.random.default_rng(1).normal(size=(50, 3))
     pts[[3, 7], 1], pts[9, 2] = np.nan, np.inf  # 3 points, one coordinate each
     bad = _raw_ply(tmp_path / "clouds" / "T003_loaded.ply", pts)
-    good = write_ply(tmp_path / "clouds" / "T003_unloaded.ply", np.nan_to_num(pts))
+    good = write_ply(tmp_path / "clouds" / "T003_unloaded.ply", np.nan_to_num(pts, posinf=0.0))
     record = Record(
         "T003", "identification", np.array(POSE_DEG), np.zeros(6), np.zeros(6), np.eye(4), good, bad
     )

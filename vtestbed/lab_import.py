@@ -41,7 +41,7 @@ from .dataset_checks import BLOCK_EDGE_RANGE_M
 from .errors import DatasetError, VtestbedError
 from .files import read_json, read_toml
 from .output_folders import require_own_kind
-from .ply import read_ply, write_ply
+from .ply import MAX_CLOUD_COORDINATE_M, read_ply, write_ply
 from .robots import load_robot
 from .schema import Fields
 from .transforms import homogeneous, matrix_from_rotation_vector
@@ -50,7 +50,6 @@ CLOUD_UNITS = ("m", "mm")
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz")
 STATES = ("unloaded", "loaded")
 WINDOWS_FILE = "ft_windows.csv"
-MAX_CLOUD_COORDINATE_M = 50.0  # no lab scanner sees farther: larger values are mm read as m
 MIN_CLOUD_EXTENT_M = 0.5 * BLOCK_EDGE_RANGE_M[0]  # smaller than any block: m read as mm
 TOP_KEYS = ("setup", "units", "ft", "tests")
 TEST_KEYS = (

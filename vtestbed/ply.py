@@ -26,6 +26,7 @@ _TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }  # fmt: skip
 _ORDER = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "<"}
+MAX_CLOUD_COORDINATE_M = 50.0  # no lab scanner sees farther: larger values are mm read as m
 _MAX_HEADER_LINES = 10_000  # a real header is a few dozen lines; this bounds a corrupt file
 
 

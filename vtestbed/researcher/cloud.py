@@ -146,7 +146,7 @@ def _fit(p: np.ndarray, nom: np.ndarray, params: FitParams, ransac: bool, rng) -
         raise ScanError(
             f"block not found: only {n_box} of {n_input} points lie within crop_margin_m = {m * 1e3:g} "
             f"mm of the nominal block (need {3 * params.min_face_points}); the block is out of view or the "
-            "nominal pose is wrong"
+            "nominal pose is wrong (the pose's angles and their convention, the scanner's pose)"
         )
     if ransac:
         in_box, seed_masks, removed = ransac_seeds(q, in_box, params, rng)

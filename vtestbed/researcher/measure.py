@@ -22,7 +22,7 @@ import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
 from ..errors import DatasetError, ImplausibleDataError, ScanError, VtestbedError
-from ..ply import read_ply
+from ..ply import MAX_CLOUD_COORDINATE_M, read_ply
 from ..robots import load_robot
 from ..transforms import displacement_in_block_frame, invert
 from . import cloud
@@ -113,6 +113,12 @@ def read_scan(path: Path, label: str) -> np.ndarray:
             f"{label} {path}: {int(bad.sum())} of its {len(points)} points have a NaN or infinite "
             "coordinate; valid: finite coordinates in m (remove those points, or rescan)"
         )
+    reach = float(np.abs(points).max())
+    if reach > MAX_CLOUD_COORDINATE_M:  # mm read as m: the fit would only say "block not found"
+        raise ScanError(
+            f"{label} {path}: coordinates reach {reach:.4g} m, beyond {MAX_CLOUD_COORDINATE_M:g} m: is the "
+            "file in mm? A dataset's clouds are in m (vtestbed dataset import --cloud-units mm converts them)"
+        )
     return points
 
 
@@ -137,7 +143,9 @@ def measure_arrays(
     # The loaded scan starts from the unloaded fit (the block moves by less than a millimetre).
     fits = []
     for label, points in (("unloaded", cloud_unloaded), ("loaded", cloud_loaded)):
-        fits.append(fit_scan_frame(points, nominal, setup, f"test {record.test_id}, {label} cloud"))
+        path = Path(getattr(record, f"cloud_{label}"))  # Path() for a record without files (a sweep's)
+        where = f"test {record.test_id}, {label} cloud" + (f" {path}" if path.name else "")
+        fits.append(fit_scan_frame(points, nominal, setup, where))
         nominal = fits[-1].pose
     frames = [f.pose for f in fits]
     return TestMeasurement(
