@@ -107,6 +107,26 @@ def test_tests_rows_cut_short_or_too_long_and_bad_bytes_are_refused(dataset):
     assert len(read_tests(dataset, check_files=False)) == 4
 
 
+def test_a_spreadsheets_byte_order_mark_is_read_and_a_wrong_delimiter_is_shown(dataset):
+    """Excel's "CSV UTF-8" starts with a byte order mark, which hid the first column (test_id);
+    a semicolon-separated file is one column, and the error shows the header as the file has it."""
+    path = dataset / "tests.csv"
+    text = path.read_text()
+    path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    assert [r.test_id for r in read_tests(dataset, check_files=False)] == ["T000", "T001", "T002", "T003"]
+    path.write_text(text.replace(",", ";"))
+    with pytest.raises(DatasetError) as err:
+        read_tests(dataset, check_files=False)
+    assert re.fullmatch(
+        r".*tests\.csv: columns missing: test_id, group, .*, cloud_loaded \(columns: test_id, .*, cloud_loaded; "
+        r"comma-separated; the file's header has test_id;group;q1_deg;.{150,}\)",
+        str(err.value),
+    )
+    path.write_text("")
+    with pytest.raises(DatasetError, match=r"the file's header has nothing \(an empty file\)\)$"):
+        read_tests(dataset, check_files=False)
+
+
 def test_repeat_scans_outside_the_folder_are_refused(dataset):
     (dataset / "repeats.csv").write_text("test_id,repeat,cloud\nT000,1,/tmp/x.ply\n")
     with pytest.raises(

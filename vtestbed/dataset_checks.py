@@ -108,13 +108,15 @@ def read_csv(path: Path, columns: list[str], what: str) -> list[tuple[int, dict]
     if not path.is_file():
         raise DatasetError(f"{what} {path} is missing")
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        with path.open(newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's byte order mark too
             reader = csv.reader(fh)
             header = next(reader, None) or []
             missing = [c for c in columns if c not in header]
             if missing:
+                has = ", ".join(header)[:200] or "nothing (an empty file)"
                 raise DatasetError(
-                    f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(columns)})"
+                    f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(columns)}; "
+                    f"comma-separated; the file's header has {has})"
                 )
             rows = []
             for fields in reader:
