@@ -195,6 +195,7 @@ CASES = {
     "setup-transform-mirrored": setup_error(sensor_in_flange=MIRROR),
     "setup-robot-number": setup_error(robot=5),
     "setup-robot-unknown": setup_error(robot="kr6_r900"),
+    "setup-format-unknown": setup_error(format="vtestbed-dataset/9"),
     "setup-convention": setup_error(angle_convention="kuka"),
     "tests-row-short": csv_lines(_cut_last_field),
     "tests-row-long": csv_lines(lambda lines: ("\n".join([*lines[:4], lines[4] + ",extra"]) + "\n").encode()),

@@ -193,6 +193,7 @@ CASES = {
     "diagnose-candidate-twice": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"
     ),
+    "diagnose-candidate-unknown": given("notes.txt", "", "diagnose", "{tmp}", "--candidates", "wobble"),
     "diagnose-candidate-empty": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,"
     ),

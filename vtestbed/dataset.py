@@ -160,6 +160,7 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
         raise DatasetError(
             f"{path}: angle_convention must be 'dh' or 'controller', got {data['angle_convention']!r}"
         )
+    checks.dataset_format(data.get("format"), path, FORMAT)
     sensor_name, sensor_range = checks.force_sensor(data["force_sensor"], path)
     return DatasetSetup(
         robot=checks.robot_name(data["robot"], path),

@@ -40,6 +40,15 @@ def string(value, where: str, field: str) -> str:
     return value
 
 
+def dataset_format(value, where: str, current: str) -> None:
+    """setup.json's ``format``: the version this vtestbed writes, or absent (a setup a lab wrote by
+    hand). Another version's dataset may mean other units or columns: refused, not guessed."""
+    if value is not None and value != current:
+        raise DatasetError(
+            f"{where}: format must be {current!r} (or absent, as in a setup written by hand), got {value!r}"
+        )
+
+
 def robot_name(value, where: str) -> str:
     """A robot vtestbed describes (a folder of models/ with a robot.toml), checked where the
     dataset names it, not later by the first reader that loads the robot."""

@@ -16,9 +16,10 @@ class VtestbedError(Exception):
 class UnknownNameError(VtestbedError, KeyError):
     """A name (robot, anchor, hook, joint, ...) that does not exist."""
 
-    def __init__(self, kind: str, name: str, valid: Iterable[str]):
+    def __init__(self, kind: str, name: str, valid: Iterable[str], where: str = ""):
         self.kind, self.name, self.valid = kind, name, sorted(valid)
-        super().__init__(f"unknown {kind} {name!r}; valid names: {', '.join(self.valid)}")
+        prefix = f"{where}: " if where else ""  # the file, field or option that gave the name
+        super().__init__(f"{prefix}unknown {kind} {name!r}; valid names: {', '.join(self.valid)}")
 
     def __str__(self) -> str:  # KeyError would quote the whole message otherwise
         return self.args[0]

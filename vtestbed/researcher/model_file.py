@@ -51,7 +51,7 @@ def require_names(names, where: str) -> None:
         )
     unknown = [n for n in names if n not in valid]
     if unknown:
-        raise UnknownNameError("candidate", unknown[0], valid)
+        raise UnknownNameError("candidate", unknown[0], valid, where)
     twice = next((n for k, n in enumerate(names) if n in names[:k]), None)
     if twice is not None:
         raise OutOfRangeError(f"{where}: candidate {twice!r} is listed twice; list each candidate once")
