@@ -1,5 +1,6 @@
 """The model-free noise floor from repeat scans, checked against independent references."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -9,8 +10,9 @@ from conftest import POSE_DEG, paper_scenario_data
 from vtestbed import dataset
 from vtestbed.campaigns.montecarlo import prepare
 from vtestbed.dataset import DatasetSetup
-from vtestbed.errors import OutOfRangeError
+from vtestbed.errors import OutOfRangeError, ScanError
 from vtestbed.experiment import simulate
+from vtestbed.ply import read_ply, write_ply
 from vtestbed.researcher import cloud
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.measure import load_measurements
@@ -138,6 +140,13 @@ def test_dataset_floor_is_the_in_memory_reduction_of_the_world_draws(tmp_path):
     np.testing.assert_array_equal(noise_floor_from_frames(frames).covariance, floor.covariance)
     assert np.all(floor.component_std > 0)
     assert floor.summary().startswith("noise floor from repeat scans: std x y z ")
+    # a repeat scan in which the block cannot be found (moved 0.3 m) names its test, number and file
+    rep = dataset.read_repeats(root)[4]
+    write_ply(rep.cloud, read_ply(rep.cloud) + [0.3, 0.0, 0.0])
+    with pytest.raises(
+        ScanError, match=rf"^test {rep.test_id}, repeat {rep.repeat} cloud {re.escape(str(rep.cloud))}: "
+    ):
+        estimate_noise_floor(root)
 
 
 # ---------------------------------------------------------------------- against a Monte Carlo

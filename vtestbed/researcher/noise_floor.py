@@ -185,6 +185,7 @@ def scan_frames(
     kin: ArmKinematics,
     frame_unloaded: np.ndarray | None = None,
     repeat_numbers: Sequence[int] | None = None,
+    files: Sequence[str] | None = None,
 ) -> list[np.ndarray]:
     """The fitted block frames (4, 4) of one test's unloaded scan and its repeats (scanner frame).
 
@@ -192,16 +193,18 @@ def scan_frames(
     :func:`~.measure.measure_arrays` fits the unloaded scan: from the kinematic nominal pose
     (so identical clouds give bitwise identical frames). ``frame_unloaded`` (e.g. a
     ``TestMeasurement.frame_unloaded``, the same numbers) saves fitting the unloaded scan again;
-    ``cloud_unloaded`` may then be None. ``repeat_numbers`` (default 1, 2, ...) only name the
-    repeats in errors.
+    ``cloud_unloaded`` may then be None. ``repeat_numbers`` (default 1, 2, ...) and ``files``
+    (the unloaded cloud's file, then each repeat's; a dataset's) only name the scans in errors.
     """
     numbers = list(repeat_numbers) if repeat_numbers is not None else range(1, len(repeat_clouds) + 1)
+    names = [f" {f}" for f in files] if files is not None else [""] * (len(repeat_clouds) + 1)
     _, nominal = nominal_block_frame(record, setup, kin)
     if frame_unloaded is None:
-        frame_unloaded = fit_scan(cloud_unloaded, nominal, setup, f"test {record.test_id}, unloaded cloud")
+        label = f"test {record.test_id}, unloaded cloud{names[0]}"
+        frame_unloaded = fit_scan(cloud_unloaded, nominal, setup, label)
     frames = [np.asarray(frame_unloaded, dtype=float)]
-    for k, points in zip(numbers, repeat_clouds):
-        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, repeat {k} cloud"))
+    for k, points, name in zip(numbers, repeat_clouds, names[1:]):
+        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, repeat {k} cloud{name}"))
     return frames
 
 
@@ -284,8 +287,9 @@ def estimate_noise_floor(
         clouds = [read_scan(r.cloud, f"test {tid}, repeat {r.repeat} cloud") for r in reps]
         cloud0 = None if tid in known else read_scan(record.cloud_unloaded, f"test {tid}, unloaded cloud")
         frames[tid] = scan_frames(
-            record, cloud0, clouds, setup, kin, known.get(tid), [r.repeat for r in reps]
-        )
+            record, cloud0, clouds, setup, kin, known.get(tid), [r.repeat for r in reps],
+            [record.cloud_unloaded, *(r.cloud for r in reps)],
+        )  # fmt: skip
         if progress:
             progress(done, len(by_test))
     return noise_floor_from_frames(frames)
