@@ -198,7 +198,10 @@ def test_missing_clouds_and_empty_datasets_are_named(tmp_path, lab, robot):
         measure_test(record, _setup(lab), kin)
     bad_pose = Record("T004", "identification", np.array([0, 40.0, 0, 0, 0, 0]), np.zeros(6), np.zeros(6),
                       np.eye(4), cloud, cloud)  # fmt: skip
-    with pytest.raises(JointLimitError, match=r"test T004 pose: joint2 = 40\.000 deg .*\[-135\.0, 35\.0\]"):
+    with pytest.raises(
+        JointLimitError,
+        match=r"test T004 pose \(tests\.csv q1_deg\.\., dh angles\): joint2 = 40\.000 deg .*\[-135\.0, 35\.0\]",
+    ):
         measure_test(bad_pose, _setup(lab), kin)
 
 

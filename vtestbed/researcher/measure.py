@@ -73,7 +73,8 @@ def nominal_block_frame(record: TestRecord, setup: DatasetSetup, kin: ArmKinemat
     scanner pose and the nominal kinematics: enough to crop the clutter around the block.
     """
     q = commanded_pose(record, setup, kin.robot)
-    kin.robot.check_pose(q, field=f"test {record.test_id} pose")
+    where = f"test {record.test_id} pose (tests.csv q1_deg.., {setup.angle_convention} angles)"
+    kin.robot.check_pose(q, field=where)
     return q, invert(record.scanner_pose) @ kin.tool_pose(q, setup.block_in_flange)
 
 
