@@ -184,8 +184,7 @@ def scan_frames(
     setup: DatasetSetup,
     kin: ArmKinematics,
     frame_unloaded: np.ndarray | None = None,
-    repeat_numbers: Sequence[int] | None = None,
-    files: Sequence[str] | None = None,
+    labels: Sequence[str] | None = None,
 ) -> list[np.ndarray]:
     """The fitted block frames (4, 4) of one test's unloaded scan and its repeats (scanner frame).
 
@@ -193,19 +192,24 @@ def scan_frames(
     :func:`~.measure.measure_arrays` fits the unloaded scan: from the kinematic nominal pose
     (so identical clouds give bitwise identical frames). ``frame_unloaded`` (e.g. a
     ``TestMeasurement.frame_unloaded``, the same numbers) saves fitting the unloaded scan again;
-    ``cloud_unloaded`` may then be None. ``repeat_numbers`` (default 1, 2, ...) and ``files``
-    (the unloaded cloud's file, then each repeat's; a dataset's) only name the scans in errors.
+    ``cloud_unloaded`` may then be None. ``labels`` only name the scans in errors: the unloaded
+    scan's, then each repeat's (default ``test T, unloaded cloud``, ``test T, repeat k cloud`` with
+    k = 1, 2, ...; a dataset's also name the files).
     """
-    numbers = list(repeat_numbers) if repeat_numbers is not None else range(1, len(repeat_clouds) + 1)
-    names = [f" {f}" for f in files] if files is not None else [""] * (len(repeat_clouds) + 1)
+    if labels is None:
+        labels = scan_labels(record.test_id, range(1, len(repeat_clouds) + 1))
     _, nominal = nominal_block_frame(record, setup, kin)
     if frame_unloaded is None:
-        label = f"test {record.test_id}, unloaded cloud{names[0]}"
-        frame_unloaded = fit_scan(cloud_unloaded, nominal, setup, label)
+        frame_unloaded = fit_scan(cloud_unloaded, nominal, setup, labels[0])
     frames = [np.asarray(frame_unloaded, dtype=float)]
-    for k, points, name in zip(numbers, repeat_clouds, names[1:]):
-        frames.append(fit_scan(points, nominal, setup, f"test {record.test_id}, repeat {k} cloud{name}"))
+    for label, points in zip(labels[1:], repeat_clouds):
+        frames.append(fit_scan(points, nominal, setup, label))
     return frames
+
+
+def scan_labels(test_id: str, repeats: Sequence[int]) -> list[str]:
+    """How errors name a test's unloaded scan, then its repeats numbered ``repeats``."""
+    return [f"test {test_id}, unloaded cloud", *(f"test {test_id}, repeat {k} cloud" for k in repeats)]
 
 
 def scan_deviations(frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -284,12 +288,13 @@ def estimate_noise_floor(
     frames = {}
     for done, (tid, reps) in enumerate(by_test.items(), start=1):
         record = records[tid]
-        clouds = [read_scan(r.cloud, f"test {tid}, repeat {r.repeat} cloud") for r in reps]
-        cloud0 = None if tid in known else read_scan(record.cloud_unloaded, f"test {tid}, unloaded cloud")
-        frames[tid] = scan_frames(
-            record, cloud0, clouds, setup, kin, known.get(tid), [r.repeat for r in reps],
-            [record.cloud_unloaded, *(r.cloud for r in reps)],
-        )  # fmt: skip
+        labels = scan_labels(tid, [r.repeat for r in reps])
+        files = [record.cloud_unloaded, *(r.cloud for r in reps)]
+        clouds = [read_scan(f, label) for f, label in zip(files[1:], labels[1:])]
+        cloud0 = None if tid in known else read_scan(files[0], labels[0])
+        # a fit's error names the file too, as read_scan's does
+        named = [f"{label} {f}" for label, f in zip(labels, files)]
+        frames[tid] = scan_frames(record, cloud0, clouds, setup, kin, known.get(tid), named)
         if progress:
             progress(done, len(by_test))
     return noise_floor_from_frames(frames)
