@@ -203,6 +203,8 @@ CASES = {
     "tests-missing": _missing_tests,
     "tests-word": row_error(2, q3_deg="ninety"),
     "tests-not-finite": row_error(0, loaded_Fx_N="1e400"),
+    "tests-scanner-mm": row_error(1, scanner_x_m="334"),
+    "tests-scanner-deg": row_error(1, scanner_rz_rad="-108.7"),
     "tests-empty-id": row_error(3, test_id=" "),
     "tests-duplicate-id": row_error(2, test_id="T001"),
     "tests-group": row_error(2, group="calibration"),

@@ -262,7 +262,7 @@ def read_tests(
         q = checks.row_numbers(row, pose_columns(), where)
         wu = checks.row_numbers(row, wrench_columns("unloaded"), where)
         wl = checks.row_numbers(row, wrench_columns("loaded"), where)
-        sc = checks.row_numbers(row, SCANNER_COLUMNS, where)
+        sc = checks.scanner_numbers(row, SCANNER_COLUMNS, where)
         if row["group"] not in GROUPS:
             raise DatasetError(f"{where}: group must be one of {', '.join(GROUPS)}, got {row['group']!r}")
         if sensor_range is not None:

@@ -21,6 +21,11 @@ from .errors import DatasetError
 BLOCK_EDGE_RANGE_M = (1e-3, 1.0)  # a target block on a flange: 1 mm to 1 m
 MOUNT_OFFSET_MAX_M = 2.0  # block or sensor frame within 2 m of the flange
 SENSOR_RANGE_MAX = 1e6  # N or N*m: far above any 6-axis F/T sensor
+# The scanner's rough pose in the robot base frame, per component. A scanner stands metres from the
+# robot at most, so a position beyond 50 m is one in mm; a rotation vector's components lie within
+# pi (4 allows a little past it), so a larger one is in degrees.
+SCANNER_POSITION_RANGE_M = (-50.0, 50.0)
+SCANNER_ROTVEC_RANGE_RAD = (-4.0, 4.0)
 
 
 def _is_number(value) -> bool:
@@ -162,6 +167,22 @@ def row_numbers(row: dict, columns: list[str], where: str) -> np.ndarray:
             )
         values.append(value)
     return np.array(values)
+
+
+def scanner_numbers(row: dict, columns: list[str], where: str) -> np.ndarray:
+    """The scanner pose's six columns of a CSV row (``x, y, z`` in m, then the rotation vector in
+    rad), each finite and in :data:`SCANNER_POSITION_RANGE_M` or :data:`SCANNER_ROTVEC_RANGE_RAD`."""
+    values = row_numbers(row, columns, where)
+    for i, (c, value) in enumerate(zip(columns, values, strict=True)):
+        (low, high), hint = (
+            (SCANNER_POSITION_RANGE_M, "m, not mm") if i < 3 else (SCANNER_ROTVEC_RANGE_RAD, "rad, not deg")
+        )
+        if not low <= value <= high:
+            raise DatasetError(
+                f"{where}: {c} = {row[c]!r} is outside [{low:g}, {high:g}]: the scanner's pose in the "
+                f"robot base frame is in {hint}"
+            )
+    return values
 
 
 def cloud_path(root: Path, text: str, where: str, field: str, example: str) -> Path:

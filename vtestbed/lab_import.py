@@ -37,7 +37,7 @@ from .dataset import (
     read_tests,
     write_setup,
 )
-from .dataset_checks import BLOCK_EDGE_RANGE_M
+from .dataset_checks import BLOCK_EDGE_RANGE_M, SCANNER_POSITION_RANGE_M, SCANNER_ROTVEC_RANGE_RAD
 from .errors import DatasetError, VtestbedError
 from .files import read_json, read_toml
 from .output_folders import require_own_kind
@@ -206,8 +206,12 @@ def _test(f: Fields, base: Path, value, i: int, window) -> dict:
     tid = f.string(t["id"], f"{where}.id", allow_empty=False)
     if not _ID.fullmatch(tid):
         raise f.error(f"{where}.id", f"{tid!r} must be letters, digits, '_', '-', '.' (it names cloud files)")
-    rotvec = np.array(f.vector(t["scanner_rotvec_rad"], f"{where}.scanner_rotvec_rad", 3, -4.0, 4.0))
-    position = np.array(f.vector(t["scanner_position_m"], f"{where}.scanner_position_m", 3, -50.0, 50.0))
+    rotvec = np.array(
+        f.vector(t["scanner_rotvec_rad"], f"{where}.scanner_rotvec_rad", 3, *SCANNER_ROTVEC_RANGE_RAD)
+    )
+    position = np.array(
+        f.vector(t["scanner_position_m"], f"{where}.scanner_position_m", 3, *SCANNER_POSITION_RANGE_M)
+    )
     out = {
         "id": tid,
         "group": f.choice(t["group"], f"{where}.group", GROUPS),
