@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import time
 from contextlib import ExitStack, closing
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +42,7 @@ from .output_folders import RUN, require_own_kind
 from .researcher import report
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
+from .run_record import Timings, versions
 from .scenario import Scenario, load_field, pose_field
 from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
@@ -53,40 +53,6 @@ from .world.sensors import ForceTorqueSensor
 from .world.truth import load_truth
 
 __all__ = ["Timings", "dataset_setup", "identify_dataset", "run", "simulate", "test_id"]
-
-
-@dataclass
-class Timings:
-    """Wall time per phase [s], for the benchmark and the run summary."""
-
-    physics: float = 0.0
-    scan: float = 0.0
-    write: float = 0.0
-    process: float = 0.0
-    identify: float = 0.0
-    report: float = 0.0
-
-    def as_dict(self) -> dict:
-        return {k: round(v, 4) for k, v in self.__dict__.items()}
-
-
-VERSIONED = ("numpy", "scipy", "mujoco", "pin", "open3d")
-
-
-def versions() -> dict[str, str]:
-    """The versions that shape a run's numbers (read from the installed metadata, no imports)."""
-    import platform
-    from importlib import metadata
-
-    from . import __version__
-
-    out = {"vtestbed": __version__, "python": platform.python_version()}
-    for name in VERSIONED:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
 
 
 def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
