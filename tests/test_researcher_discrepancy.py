@@ -214,6 +214,27 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert np.all((q2 > -130) & (q2 < 40))  # DH theta2 = A2 inside the datasheet limits
 
 
+def test_the_detection_alone_is_the_full_runs_detection(hidden_dataset, tmp_path, capsys):
+    """``--candidates none``: the detection of the full run (same chi^2, p and residuals), its model
+    the baseline, and every report says that no candidate was tested."""
+    full = diagnose(hidden_dataset, names=("link_compliance",))
+    assert (
+        cli.main(["diagnose", str(hidden_dataset), "--candidates", "none", "--out", str(tmp_path / "d")]) == 0
+    )
+    assert "No candidate was tested" in capsys.readouterr().out
+    alone = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert alone["candidates"] == [] and alone["named"] == [] and alone["rounds"] == []
+    for key in ("chi2", "dof", "p_value"):
+        assert alone["detect"][key] == pytest.approx(full["detect"][key], rel=1e-12)
+    assert alone["detect"]["model_rejected"] and full["named"] == ["link_compliance(link 2)"]
+    base = np.array(full["baseline"]["stiffness_Nm_per_rad"])
+    assert np.array(alone["model"]["stiffness_Nm_per_rad"]) == pytest.approx(base, rel=1e-12)
+    assert alone["validation"]["after"]["ratio_to_floor"] == pytest.approx(
+        full["validation"]["before"]["ratio_to_floor"], rel=1e-12
+    )
+    assert "No candidate was tested" in (tmp_path / "d" / "report.html").read_text()
+
+
 def test_bad_inputs_are_named(tmp_path, capsys):
     scenario = load_scenario(ROOT / "scenarios" / "kr60_ideal.toml")
     simulate(scenario.__class__(**{**scenario.__dict__, "poses": scenario.poses[:3],

@@ -14,6 +14,7 @@ def _cmd_diagnose(args) -> int:
     from ..robots import load_robot
 
     names = None if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
+    names = () if names == ("none",) else names  # the detection alone
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
@@ -50,7 +51,8 @@ def register(sub) -> None:
     p.add_argument(
         "--candidates",
         help="comma-separated candidate names (default: all but the opt-in geometric_error; with "
-        "--statics paper, the clean world's gravity_stiffness, load_dependent_jacobian and exact_kinematics too)",
+        "--statics paper, the clean world's gravity_stiffness, load_dependent_jacobian and exact_kinematics too; "
+        "none: the detection alone)",
     )
     p.add_argument("--statics", default="exact", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip

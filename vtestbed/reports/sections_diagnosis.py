@@ -42,9 +42,14 @@ def detection(folder: ResultFolder) -> Section:
     return Section("detection", "Detection", blocks)
 
 
+NO_CANDIDATES = "No candidate was tested: the detection alone (--candidates none)."
+
+
 def candidates(folder: ResultFolder) -> Section:
     """Every round's candidate tests: likelihood ratio, p-value, held-out error, BIC, significance."""
     blocks = []
+    if folder.data.get("candidates") == []:  # --candidates none
+        blocks.append(Text([NO_CANDIDATES], id="no-candidates"))
     for i, rnd in enumerate(folder.data["rounds"], start=1):
         base = ", ".join(rnd["base"]) or "the paper's model"
         rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t.get("press"), ".2f"),
@@ -64,7 +69,7 @@ def candidates(folder: ResultFolder) -> Section:
 def named(folder: ResultFolder) -> Section:
     """The named effects, their parameters with std, and the stiffness before and after."""
     r = folder.data
-    text = [f"Named: {', '.join(r['named']) or 'nothing'}."]
+    text = [NO_CANDIDATES] if r.get("candidates") == [] else [f"Named: {', '.join(r['named']) or 'nothing'}."]
     text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
     text += [f"{label} (dropped): {note}" for label, note in r.get("dropped", {}).items()]  # stepwise search
     text += [

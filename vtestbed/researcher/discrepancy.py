@@ -57,13 +57,15 @@ def diagnose(
     the baseline, so that candidates compete only for what every lab does not share;
     ``"paper"`` takes the paper's linear model as it is, and the three clean-world gaps
     (``gravity_stiffness``, ``load_dependent_jacobian``, ``exact_kinematics``) join the
-    candidates. ``names``: the candidate names (default :func:`default_candidates`). ``rank_by``:
+    candidates. ``names``: the candidate names (default :func:`default_candidates`; ``()`` tests
+    none, the detection alone: the report's model is then the baseline). ``rank_by``:
     how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
     leave-one-test-out prediction error).
     """
     require_rank(rank_by)  # before any work: the dataset's own errors come after
     names = default_candidates(statics) if names is None else tuple(names)
-    require_names(names, "--candidates")
+    if names:  # none (``names=()``, ``--candidates none``): the detection alone
+        require_names(names, "--candidates")
     require_outside(statics, names, "--candidates")
     setup, measurements = load_measurements(root)
     floor = require_floor(estimate_noise_floor(root, measurements), root)
@@ -93,6 +95,7 @@ def diagnose(
         "alpha": alpha,
         "rank_by": rank_by,
         "statics": statics,
+        "candidates": list(names),
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples)},
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
@@ -247,7 +250,9 @@ def markdown(report: dict, joint_names) -> str:
         )
         + ".",
         "",
-        "**Name.** "
+        "**Name.** No candidate was tested: the detection alone (`--candidates none`)."
+        if report.get("candidates") == []
+        else "**Name.** "
         + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
         + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by {rank_label(report)}).",
     ]
