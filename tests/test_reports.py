@@ -352,6 +352,29 @@ def test_missing_apt_get_is_browser_unavailable(tmp_path, monkeypatch):
     assert "--disable-dev-shm-usage" in browser.FLAGS
 
 
+def test_a_second_installer_waits_for_the_first_and_installs_nothing(tmp_path, monkeypatch):
+    """Two processes of ``pytest -n 2`` on a fresh machine: the one that finds the install lock
+    held waits, then sees the first one's Chromium and returns it (no apt-get on PATH here: had it
+    not waited, it would raise)."""
+    import fcntl
+    import threading
+
+    from vtestbed.reports import browser
+
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setattr(browser.os, "geteuid", lambda: 0)
+    path, result = tmp_path / "chromium", []
+    with browser.INSTALL_LOCK.open("a") as first:
+        fcntl.flock(first, fcntl.LOCK_EX)  # the first installer, at work
+        waiting = threading.Thread(target=lambda: result.append(browser.ensure_chromium(path)))
+        waiting.start()
+        waiting.join(0.5)
+        assert waiting.is_alive() and result == []  # it waits on the lock
+        path.write_text("#!/bin/sh\n")  # the first one's install lands, then it lets go
+    waiting.join(10)
+    assert result == [path]
+
+
 def test_a_run_page_embeds_the_figures_the_run_wrote(tmp_path):
     """The PNG the run recorded in result.json is embedded byte for byte (no second drawing); a
     result that records none (``--no-figures``) gets them drawn from its numbers."""

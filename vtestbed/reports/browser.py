@@ -9,6 +9,7 @@ when it runs as root, and otherwise says how to get it.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import subprocess
@@ -17,6 +18,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 CHROMIUM = Path("/usr/bin/chromium")
+# One installer at a time (the test processes of ``pytest -n 2``, two reports at once): apt-get's
+# own lock would fail the second instead of letting it wait for the first.
+INSTALL_LOCK = Path(tempfile.gettempdir()) / "vtestbed-chromium-install.lock"
 # The machine's Chromium needs these headless: no sandbox (root, containers), no GPU, and none of
 # its background traffic, which would both slow the start and defeat the offline check; and no
 # /dev/shm for its shared memory (a container's is often 64 MB, too small: tabs crash).
@@ -52,6 +56,14 @@ def ensure_chromium(path: Path = CHROMIUM) -> Path:
             f"{path} is missing and this process is not root: install it with "
             "'sudo apt-get install -y chromium' (the report's browser tests need Debian's Chromium)"
         )
+    with INSTALL_LOCK.open("a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not path.is_file():  # another process may have installed it while this one waited
+            _install_chromium(path)
+    return path
+
+
+def _install_chromium(path: Path) -> None:
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
     install = ["apt-get", "install", "-y", "-q", "chromium"]
     try:
@@ -70,7 +82,6 @@ def ensure_chromium(path: Path = CHROMIUM) -> Path:
         ) from None
     if not path.is_file():
         raise BrowserUnavailable(f"the chromium package is installed but {path} is not there")
-    return path
 
 
 @contextmanager
