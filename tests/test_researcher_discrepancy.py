@@ -171,8 +171,15 @@ def hidden_dataset(tmp_path_factory):
     return out
 
 
-def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_dataset, truth, tmp_path):
-    report = diagnose(hidden_dataset, out=tmp_path / "diag")
+@pytest.fixture(scope="module")
+def hidden_diagnosis(hidden_dataset, tmp_path_factory):
+    """``diagnose`` of the hidden-link dataset, every candidate: (report, its folder; read only)."""
+    out = tmp_path_factory.mktemp("hidden_diagnosis") / "diag"
+    return diagnose(hidden_dataset, out=out), out
+
+
+def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_diagnosis, truth):
+    report, folder = hidden_diagnosis
     assert report["detect"]["model_rejected"] and report["detect"]["p_value"] < 1e-10
     assert report["named"][0] == "link_compliance(link 2)"
     first = report["rounds"][0]  # the separation from the runner-up is reported, and here it is clear
@@ -197,7 +204,7 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
         assert summary[key] == pytest.approx(rms, rel=1e-12)
     assert validation_summary({"validation": {}}) is None  # a dataset without validation tests
     for name in ("report.json", "report.md", "gap.png", "patterns.png", "effect.png", "model.json"):
-        assert (tmp_path / "diag" / name).stat().st_size > 100
+        assert (folder / name).stat().st_size > 100
     # the named effect's figure: what the terms explain is the drop of chi^2, and it is most of it
     effect = report["effect"]
     assert effect["terms"] == report["named"]
@@ -214,10 +221,10 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_datas
     assert np.all((q2 > -130) & (q2 < 40))  # DH theta2 = A2 inside the datasheet limits
 
 
-def test_the_detection_alone_is_the_full_runs_detection(hidden_dataset, tmp_path, capsys):
+def test_the_detection_alone_is_the_full_runs_detection(hidden_dataset, hidden_diagnosis, tmp_path, capsys):
     """``--candidates none``: the detection of the full run (same chi^2, p and residuals), its model
     the baseline, and every report says that no candidate was tested."""
-    full = diagnose(hidden_dataset, names=("link_compliance",))
+    full, _ = hidden_diagnosis
     assert (
         cli.main(["diagnose", str(hidden_dataset), "--candidates", "none", "--out", str(tmp_path / "d")]) == 0
     )
@@ -274,12 +281,12 @@ def test_too_few_tests_for_a_candidate_and_too_few_repeat_samples_are_named(tmp_
         Whitener(NoiseFloor(np.zeros((6, 6)), n_samples=3, n_tests=2))
 
 
-def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, truth, tmp_path):
+def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, hidden_diagnosis, tmp_path):
     from vtestbed.errors import DatasetError
     from vtestbed.researcher.model_file import identify_with_model
 
-    report = diagnose(hidden_dataset, out=tmp_path / "diag")
-    model = tmp_path / "diag" / "model.json"
+    report, folder = hidden_diagnosis
+    model = folder / "model.json"
     result = identify_with_model(hidden_dataset, model)
     # the same terms refitted give the same numbers as the diagnosis
     np.testing.assert_allclose(
