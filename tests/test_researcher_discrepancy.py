@@ -343,3 +343,7 @@ def test_geometric_error_is_opt_in_and_named_in_the_unknown_name_error():
     kin = ArmKinematics(load_scenario(PAPER).robot)
     with pytest.raises(UnknownNameError, match=r"valid names: .*geometric_error"):
         candidates(kin, ("geometric",))
+    # one comma-separated string, as on the command line: its names, not its characters (refused
+    # before any file is read)
+    with pytest.raises(UnknownNameError, match=r"--candidates: unknown candidate 'wobble'"):
+        diagnose("no-such-dataset", names="link_compliance, wobble")

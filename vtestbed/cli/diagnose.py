@@ -13,8 +13,7 @@ def _cmd_diagnose(args) -> int:
     from ..researcher.discrepancy import diagnose, markdown
     from ..robots import load_robot
 
-    names = None if args.candidates is None else tuple(n.strip() for n in args.candidates.split(","))
-    names = () if names == ("none",) else names  # the detection alone
+    names = () if (args.candidates or "").strip() == "none" else args.candidates  # none: the detection alone
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise

@@ -57,12 +57,15 @@ def diagnose(
     the baseline, so that candidates compete only for what every lab does not share;
     ``"paper"`` takes the paper's linear model as it is, and the three clean-world gaps
     (``gravity_stiffness``, ``load_dependent_jacobian``, ``exact_kinematics``) join the
-    candidates. ``names``: the candidate names (default :func:`default_candidates`; ``()`` tests
-    none, the detection alone: the report's model is then the baseline). ``rank_by``:
+    candidates. ``names``: the candidate names, a sequence or one comma-separated string (default
+    :func:`default_candidates`; ``()`` tests none, the detection alone: the report's model is then
+    the baseline). ``rank_by``:
     how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
     leave-one-test-out prediction error).
     """
     require_rank(rank_by)  # before any work: the dataset's own errors come after
+    if isinstance(names, str):  # "a,b" as on the command line, not its characters
+        names = tuple(n.strip() for n in names.split(","))
     names = default_candidates(statics) if names is None else tuple(names)
     if names:  # none (``names=()``, ``--candidates none``): the detection alone
         require_names(names, "--candidates")
