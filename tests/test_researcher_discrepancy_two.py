@@ -77,6 +77,10 @@ def test_stepwise_naming_drops_the_term_that_stood_in_for_both(two_effects):
     # the max_terms - 1 = 2 such rounds, over the 12 candidates then in play)
     assert drop["p_value"] > 0.9 and drop["level"] == pytest.approx(DEFAULT_ALPHA / (12 * 2))
     assert final.chi2 == pytest.approx(fit_model(ctx, white, chosen).chi2, rel=1e-6)
+    # the rounds after the first name spend alpha between them (Bonferroni over the candidates of
+    # each): the drop kept two terms after round 3, but a fourth round would spend 1.5 alpha
+    later = [s for s in steps if s.base_terms]
+    assert len(steps) == 3 and sum(s.level * len(s.tests) for s in later) == pytest.approx(DEFAULT_ALPHA)
     notes = dropped_notes(steps, {c.label for c in chosen})
     assert list(notes) == ["block_offset"]
     assert (

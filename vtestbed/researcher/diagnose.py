@@ -271,6 +271,12 @@ def name_effects(
     n_obs = 6 * ctx.n_tests
     seen = {frozenset()}
     while len(chosen) < max_terms:
+        # The rounds after a first name spend alpha / (max_terms - 1) each (step_level): at most
+        # max_terms - 1 of them, so that together they add a false term with probability at most
+        # alpha also when a drop has kept the count of terms down (without drops the count of
+        # terms ends the search first).
+        if chosen and sum(1 for s in steps if s.base_terms) >= max(max_terms - 1, 1):
+            break
         remaining = [c for c in pool if c.label not in {t.label for t in chosen}]
         if not remaining:
             break
