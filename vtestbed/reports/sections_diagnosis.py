@@ -6,7 +6,7 @@ Stiffness in N*mm/rad, the noise floor in um and urad, residuals as ratios to th
 from __future__ import annotations
 
 from ..researcher.diagnose import confusable_margin, rank_label
-from ..researcher.discrepancy import COMPONENTS, stand_ins
+from ..researcher.discrepancy import COMPONENTS, detection_alone, no_candidates_text, stand_ins
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
 from .loader import ResultFolder
@@ -42,14 +42,11 @@ def detection(folder: ResultFolder) -> Section:
     return Section("detection", "Detection", blocks)
 
 
-NO_CANDIDATES = "No candidate was tested: the detection alone (--candidates none)."
-
-
 def candidates(folder: ResultFolder) -> Section:
     """Every round's candidate tests: likelihood ratio, p-value, held-out error, BIC, significance."""
     blocks = []
-    if folder.data.get("candidates") == []:  # --candidates none
-        blocks.append(Text([NO_CANDIDATES], id="no-candidates"))
+    if detection_alone(folder.data):
+        blocks.append(Text([no_candidates_text()], id="no-candidates"))
     for i, rnd in enumerate(folder.data["rounds"], start=1):
         base = ", ".join(rnd["base"]) or "the paper's model"
         rows = [[t["label"], Num(t["lr"], ".2f"), str(t["df"]), Num(t["p_value"], ".3g"), Num(t.get("press"), ".2f"),
@@ -69,7 +66,7 @@ def candidates(folder: ResultFolder) -> Section:
 def named(folder: ResultFolder) -> Section:
     """The named effects, their parameters with std, and the stiffness before and after."""
     r = folder.data
-    text = [NO_CANDIDATES] if r.get("candidates") == [] else [f"Named: {', '.join(r['named']) or 'nothing'}."]
+    text = [no_candidates_text()] if detection_alone(r) else [f"Named: {', '.join(r['named']) or 'nothing'}."]
     text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
     text += [f"{label} (dropped): {note}" for label, note in r.get("dropped", {}).items()]  # stepwise search
     text += [

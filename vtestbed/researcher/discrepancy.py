@@ -179,6 +179,17 @@ def pose_features(ctx: ModelContext) -> dict:
     return feats
 
 
+def detection_alone(report: dict) -> bool:
+    """Whether ``report`` tested no candidate (``--candidates none``; a report written before
+    reports recorded their candidates did test them)."""
+    return report.get("candidates") == []
+
+
+def no_candidates_text(option: str = "--candidates none") -> str:
+    """What the reports say instead of the names when :func:`detection_alone`."""
+    return f"No candidate was tested: the detection alone ({option})."
+
+
 EXACT_PATTERN_TESTS = 8  # up to 8! = 40320 orderings the p-value is exact (see spearman)
 
 
@@ -253,8 +264,8 @@ def markdown(report: dict, joint_names) -> str:
         )
         + ".",
         "",
-        "**Name.** No candidate was tested: the detection alone (`--candidates none`)."
-        if report.get("candidates") == []
+        f"**Name.** {no_candidates_text('`--candidates none`')}"
+        if detection_alone(report)
         else "**Name.** "
         + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
         + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by {rank_label(report)}).",
