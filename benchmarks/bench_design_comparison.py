@@ -9,6 +9,9 @@ n = 6, 12, 20 tests,
 * D, A, minimax: :func:`vtestbed.design.minimax.design` over one broad pool (``--pool`` random
   feasible poses, seed 0, every hook and ring, 4 tension levels up to the panel's top tension),
   prior = the paper's Table 5 (this lab's truth: these are the true-prior designs),
+* refined: the minimax design with that pool grown around its poses ``--refine`` times
+  (:func:`vtestbed.design.refine.refine_design`, seed ``[16, n]``; what ``vtestbed poses design --refine``
+  does),
 * sequential: the loop a lab runs, from a prior off by x2 / x0.5 on alternate joints (and, as
   ``sequential_inv``, by x0.5 / x2): a minimax
   pilot of 6 tests with that prior, then batches (to 9, 12, 16, 20, 24, 28, 32 tests) each chosen by
@@ -27,8 +30,9 @@ SIGMA_P / SIGMA_R, at the truth). Panels: tensions up to 200 N and up to the lab
 are cached in ``--cache`` (shared machinery: ``bench_design_uncertainty.measure``).
 
 Run: .venv/bin/python benchmarks/bench_design_comparison.py [--trials 40] [--panels 200,limit]
-       [--figure docs/img/poses/design_comparison.png] [--table] [--method fgls|gls_floor]
-(one worker: 8.5 min for both panels from scratch on this shared machine, seconds from the cache;
+       [--figure docs/img/poses/design_comparison.png] [--table] [--method fgls|gls_floor] [--refine 4]
+(one worker: 8.5 min for both panels from scratch on this shared machine without the refined
+designs, about 30 min more with them; seconds from the cache;
 docs/poses.md, "Comparison through the full pipeline").
 """
 
@@ -48,6 +52,7 @@ from vtestbed.campaigns.posesets import TestPlan
 from vtestbed.design import minimax, pool
 from vtestbed.design import optimal as design
 from vtestbed.design.priors import PAPER_TABLE5
+from vtestbed.design.refine import refine_design
 from vtestbed.design.sequential import next_tests, noise_from_residuals
 from vtestbed.researcher.identify import identify
 from vtestbed.researcher.measure import stacked
@@ -55,11 +60,12 @@ from vtestbed.researcher.measure import stacked
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "kr60_paper.toml"
 COUNTS = (6, 12, 20)
-FIXED = ("kappa", "random", "D", "A", "minimax")
+FIXED = ("kappa", "random", "D", "A", "minimax", "refined")
 SEQ_STEPS = (6, 9, 12, 16, 20, 24, 28, 32)
 PRIOR_OFF = 2.0 ** np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # x2 / x0.5 on alternate joints
 PRIORS = {"sequential": PRIOR_OFF, "sequential_inv": 1 / PRIOR_OFF}  # the loop's start, per run
 LABELS = {
+    "refined": "minimax, pool grown around it",
     "sequential": "sequential (prior x2, x0.5, ...)",
     "sequential_inv": "sequential (prior x0.5, x2, ...)",
 }
@@ -124,12 +130,33 @@ def sequential(cands, base, k_true: np.ndarray, prior: np.ndarray) -> tuple[Test
     return plan_of("sequential", [cands.tests[i] for i in chosen]), log
 
 
-def panel_designs(base, tension: float, tag: str, n_poses: int, cache: Path) -> dict:
-    """name -> (TestPlan, counts, extra) for D, A, minimax (per n) and each sequential run, cached as JSON."""
+def refined_designs(base, cands, k: np.ndarray, tension: float, rounds: int) -> dict:
+    """name -> (TestPlan, counts, extra): the minimax design of each n with its pool grown ``rounds`` times."""
+    out = {}
+    for n in COUNTS:
+        t0 = time.perf_counter()
+        grown = refine_design(
+            base.robot, cands, n, k, np.random.default_rng([16, n]), base.lab, rounds, max_tension=tension
+        )
+        plan = plan_of("refined", [grown.pool.tests[i] for i in grown.result.selection.indices])
+        bound = float(np.sqrt(grown.result.relaxation.bound))
+        out[f"refined_{n}"] = (plan, (n,), {"bound": bound, "refine_rounds": rounds, **grown.to_dict()})
+        print(f"  refined {n}: {time.perf_counter() - t0:.0f} s, worst std "
+              + " -> ".join(f"{h['worst_relative_std_percent']:.3f}" for h in grown.history) + " %", flush=True)  # fmt: skip
+    return out
+
+
+def panel_designs(base, tension: float, tag: str, n_poses: int, cache: Path, rounds: int = 0) -> dict:
+    """name -> (TestPlan, counts, extra) for D, A, minimax, refined (per n) and each sequential run, cached as JSON."""
     path = cache / f"designs_{tag}.json"
     raw = json.loads(path.read_text()) if path.exists() else {}
     out = {name: (TestPlan.from_dict(v["plan"]), tuple(v["counts"]), v["extra"]) for name, v in raw.items()}
-    missing = [name for name in ("minimax_20", *PRIORS) if name not in out]
+    if not rounds:
+        out = {name: v for name, v in out.items() if not name.startswith("refined_")}
+    stale = rounds and out.get("refined_20", (None, None, {}))[2].get("refine_rounds") != rounds
+    missing = [name for name in ("minimax_20", *PRIORS) if name not in out] + (
+        ["refined_20"] if stale else []
+    )
     if not missing:
         return out
     k = PAPER_TABLE5.stiffness
@@ -139,6 +166,8 @@ def panel_designs(base, tension: float, tag: str, n_poses: int, cache: Path) -> 
             f"{c}_{n}": (d["plan"], (n,), {"bound": d["bound"]})
             for (c, n), d in fixed_designs(cands, k).items()
         }
+    if "refined_20" in missing:
+        out |= refined_designs(base, cands, k, tension, rounds)
     for name in (m for m in missing if m in PRIORS):
         t0 = time.perf_counter()
         plan, log = sequential(cands, base, k, k * PRIORS[name])
@@ -160,7 +189,9 @@ def run_panel(base, tag: str, tension: float, args, cache: Path, shared: dict) -
     """Measure every set of one panel; returns (design, n) -> {"err", "pred", "bound"}."""
     print(f"\npanel {tag}: tensions up to {tension:g} N", flush=True)
     cells = dict(shared)
-    for name, (plan, counts, extra) in panel_designs(base, tension, tag, args.pool, cache).items():
+    for name, (plan, counts, extra) in panel_designs(
+        base, tension, tag, args.pool, cache, args.refine
+    ).items():
         scenario = plan.scenario(base)
         data = measure(f"{name}_{tag}", scenario, args.trials, cache)
         a = scenario_a(scenario)
@@ -253,7 +284,7 @@ def figure(rows: list[dict], path: Path) -> None:
     panels = list(dict.fromkeys(r["panel"] for r in rows))
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.2), sharey=True, squeeze=False)
     style = {"kappa": ("k", "o"), "random": ("0.55", "s"), "D": ("tab:orange", "^"), "A": ("tab:green", "v"),
-             "minimax": ("tab:blue", "D"), "sequential": ("tab:red", "x"),
+             "minimax": ("tab:blue", "D"), "refined": ("tab:cyan", "P"), "sequential": ("tab:red", "x"),
              "sequential_inv": ("tab:purple", "+")}  # fmt: skip
     for ax, tag in zip(axes[0], panels):
         for name, (color, marker) in style.items():
@@ -302,6 +333,9 @@ def main() -> None:
     )
     parser.add_argument("--cache", default=str(ROOT / "runs" / "bench_design_comparison"),
                         help="directory for the designs and the measured trials (default %(default)s)")  # fmt: skip
+    parser.add_argument("--refine", type=int, default=4,
+                        help="rounds of growing the pool around the minimax design (0: no refined designs; "
+                             "default %(default)s)")  # fmt: skip
     parser.add_argument("--figure", help="write the comparison figure here (PNG)")
     parser.add_argument("--table", action="store_true", help="print the 20-test minimax design of each panel")
     parser.add_argument("--method", default="fgls", choices=("fgls", "gls_floor"),

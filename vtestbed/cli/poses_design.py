@@ -14,6 +14,7 @@ from ..design import optimal as design
 from ..design.clearance import NominalClearance
 from ..design.pool import NoFeasibleTestError, candidate_pool, kappa_selection, random_poses
 from ..design.priors import NAMED_PRIORS, stiffness_prior
+from ..design.refine import MAX_ROUNDS, refine_design
 from ..design.sequential import next_tests, noise_from_residuals
 from ..errors import DatasetError, OutOfRangeError, UnknownNameError, VtestbedError
 from ..robot_lab import lab_for_robot
@@ -52,6 +53,12 @@ def _cmd_design(args) -> int:
     if args.tension is not None:
         lab.check_tension(args.tension, "--tension")
     kappa_sel = args.criterion == "kappa"
+    if args.refine and (args.criterion != "minimax" or args.no_bound):
+        raise OutOfRangeError(
+            f"--refine {args.refine} grows the pool for the minimax design with its bound; it does not apply "
+            f"to --criterion {args.criterion}{' with --no-bound' if args.no_bound else ''} (valid: --criterion "
+            "minimax without --no-bound, or --refine 0)"
+        )
     pool_kind = "regions" if kappa_sel else args.pool
     n_poses = args.n if args.n is not None else (max(40, 3 * args.tests) if pool_kind == "regions" else 400)
     args.n = n_poses
@@ -80,8 +87,15 @@ def _cmd_design(args) -> int:
         except NoFeasibleTestError as exc:  # the only refusal that other poses or options can cure
             raise VtestbedError(f"{exc} (robot {robot.name!r}; try other poses, --hooks/--anchors, "
                                 "or --no-clearance)") from None  # fmt: skip
-        result = minimax.design(cands.a, args.tests, prior, args.criterion, args.sigma_p, args.sigma_r,
-                                bound=not args.no_bound)  # fmt: skip
+        if args.refine:  # grow the pool around the design's poses (design/refine.py)
+            grown = refine_design(robot, cands, args.tests, prior, np.random.default_rng([args.seed, 1]), lab,
+                           args.refine, max_tension=args.tension, levels=args.tension_levels, hooks=hooks,
+                           anchors=anchors, clearance=nominal, sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
+            result, cands = grown.result, grown.pool
+            data["refine"] = grown.to_dict()
+        else:
+            result = minimax.design(cands.a, args.tests, prior, args.criterion, args.sigma_p, args.sigma_r,
+                                    bound=not args.no_bound)  # fmt: skip
         chosen = [cands.tests[i] for i in result.selection.indices]
         data |= {"candidates": len(cands), "candidate_pool": cands.to_dict(), **result.to_dict()}
         rep = result.selection.report
@@ -181,6 +195,9 @@ def add_design_parsers(cmds, common, lab_args) -> None:
                    help="minimax: the worst joint's relative std (default); D, A, E; kappa: the paper's "
                         "selection (region poses in draw order, one test each)")  # fmt: skip
     p.add_argument("--no-bound", action="store_true", help="skip the convex relaxation and its bound")
+    p.add_argument("--refine", type=integer(0, MAX_ROUNDS), default=0, metavar="ROUNDS",
+                   help="minimax only: grow the pool around the design's poses and choose again, at most "
+                        "ROUNDS times (docs/poses.md; 0.5-2.5 min per round; default %(default)s)")  # fmt: skip
     p.add_argument("--no-clearance", action="store_true",
                    help="skip the clearance check (docs/clearance.md; its link shells are the KR60's)")  # fmt: skip
     _noise_args(p)

@@ -6,7 +6,8 @@
 :func:`select_tests` and :func:`evaluate` the D/A/E/minimax-optimal choice of tests, which needs an
 explicit stiffness prior (:mod:`vtestbed.design.priors`); :func:`candidate_pool` the feasible test
 space, :func:`design` the minimax (default) design with its convex relaxation and certified lower
-bound (:mod:`vtestbed.design.minimax`), :func:`next_tests` the sequential design after a dataset,
+bound (:mod:`vtestbed.design.minimax`), :func:`refine_design` that design with the pool grown around its
+poses (:mod:`vtestbed.design.refine`), :func:`next_tests` the sequential design after a dataset,
 :func:`stiffness_bound` the Cramer-Rao bound from the scanner's point noise
 (:mod:`vtestbed.design.crlb`). Nominal geometry only, no truth.
 """
@@ -18,6 +19,7 @@ from .minimax import MinimaxDesign, Relaxation, design, relax
 from .optimal import CandidateTest, DesignReport, Selection, candidate_tests, evaluate, select_tests
 from .pool import TestPool, candidate_pool, kappa_selection, random_poses
 from .priors import NAMED_PRIORS, PAPER_TABLE5, StiffnessPrior, stiffness_prior
+from .refine import RefinedDesign, refine_design
 from .regions import PoseConstraints, PoseSet, Region, find_regions, joint_plane_map, sample_poses
 from .sequential import NextTests, next_tests
 
@@ -33,6 +35,7 @@ __all__ = [
     "Optimum",
     "PoseConstraints",
     "PoseSet",
+    "RefinedDesign",
     "Region",
     "Relaxation",
     "Selection",
@@ -56,6 +59,7 @@ __all__ = [
     "paper_optimum",
     "pose_covariances",
     "random_poses",
+    "refine_design",
     "relax",
     "sample_poses",
     "select_tests",
