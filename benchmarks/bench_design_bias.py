@@ -1,0 +1,118 @@
+"""The paper's linear model against the clean world's exact statics, on the comparison's designs.
+
+At the lab's tension limit the designed sets' errors carry a bias that grows with the tension
+(the neglected load-dependent Jacobian, gravity's geometric stiffness, second-order kinematics).
+This bench identifies the same full-pipeline trials as ``bench_design_comparison.py`` (the same
+seeds, 16 000 + i, re-measured: the pipeline is deterministic) three ways, each from a trial's
+first n tests:
+
+* ``fgls``: the comparison's estimator (the paper's model, FGLS);
+* ``floor``: the paper's model weighted with the repeat scans' noise floor (GLS,
+  :func:`vtestbed.researcher.model_fit.fit_model` without terms);
+* ``exact``: the same against the clean world's exact statics
+  (:class:`vtestbed.researcher.statics.ExactStatics`: the nominal robot's equilibrium under its
+  weight and the measured sensor load, what ``vtestbed diagnose`` takes as its baseline).
+
+Printed per set and estimator: each joint's mean error and std [%], the worst joint's RMS error
+and its ratio to the kappa set's under the same estimator. The designs come from the comparison's
+cache (``--cache``; run ``bench_design_comparison.py`` first).
+
+Run: .venv/bin/python benchmarks/bench_design_bias.py [--trials 40] [--workers 2]
+       [--sets kappa_12,kappa_20,minimax_12_588.6N,refined_12_588.6N,minimax_20_588.6N,refined_20_588.6N]
+(8 min on 2 workers for these six sets and the four 200 N ones; docs/poses.md, "The bias, removed").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+import vtestbed as vt
+from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
+from vtestbed.campaigns.posesets import TestPlan
+from vtestbed.researcher.candidates import ModelContext
+from vtestbed.researcher.identify import identify
+from vtestbed.researcher.measure import stacked
+from vtestbed.researcher.model_fit import Whitener, fit_model
+from vtestbed.researcher.noise_floor import noise_floor_from_frames
+from vtestbed.researcher.statics import ExactStatics
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "scenarios" / "kr60_paper.toml"
+REPEATS = 3  # repeat scans per test, as the comparison's trials
+ESTIMATORS = ("fgls", "floor", "exact")
+_PREPARED: dict = {}
+
+
+def set_scenario(name: str, cache: Path):
+    """(scenario, n): the kappa set's first n tests (``kappa_N``) or a cached design (``DESIGN_N_TAG``)."""
+    base = vt.load_scenario(PAPER)
+    if name.startswith("kappa_"):
+        return base, int(name.split("_")[1])
+    design, n, tag = name.rsplit("_", 2)
+    plans = json.loads((cache / f"designs_{tag}.json").read_text())
+    return TestPlan.from_dict(plans[f"{design}_{n}"]["plan"]).scenario(base), int(n)
+
+
+def trial(args) -> np.ndarray:
+    """(3, n_joints) relative errors of one trial's first n tests under each estimator."""
+    name, cache, seed = args
+    if name not in _PREPARED:
+        scenario, n = set_scenario(name, cache)
+        _PREPARED.clear()
+        _PREPARED[name] = (prepare(scenario), n)
+    prepared, n = _PREPARED[name]
+    ms = measure_trial(prepared, seed)[:n]
+    tests = prepared.identification_tests()[:n]
+    frames = repeat_frames(prepared, seed, tests, ms, prepared.scenario.scanner.noise_model, REPEATS)
+    white = Whitener(noise_floor_from_frames(frames))
+    k_true = prepared.stiffness_true
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        k_fgls = identify(*stacked(ms), method="fgls").stiffness
+    out = [k_fgls / k_true - 1]
+    for statics in (None, ExactStatics(prepared.kinematics, prepared.setup)):
+        fit = fit_model(ModelContext(ms, prepared.setup, prepared.kinematics, statics), white, [])
+        out.append(1.0 / fit.compliance / k_true - 1)
+    return np.array(out)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=40)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--cache", default=str(ROOT / "runs" / "bench_design_comparison"),
+                        help="bench_design_comparison.py's cache (its designs_TAG.json)")  # fmt: skip
+    parser.add_argument("--sets", default="kappa_12,kappa_20,minimax_12_588.6N,refined_12_588.6N,"
+                        "minimax_20_588.6N,refined_20_588.6N")  # fmt: skip
+    args = parser.parse_args()
+    cache, names = Path(args.cache), args.sets.split(",")
+    t0 = time.perf_counter()
+    jobs = [(name, cache, 16_000 + i) for name in names for i in range(args.trials)]
+    with ProcessPoolExecutor(args.workers) as pool:
+        errs = list(pool.map(trial, jobs, chunksize=args.trials))
+    err = {
+        name: np.array(errs[k * args.trials : (k + 1) * args.trials]) * 100 for k, name in enumerate(names)
+    }
+    worst = {
+        name: np.sqrt(np.mean(e**2, axis=0)).max(axis=1) for name, e in err.items()
+    }  # (3,) per estimator
+    print(f"# {args.trials} trials per set, seeds 16000+i; errors relative to k_true [%]")
+    for name, e in err.items():
+        kappa = worst.get(f"kappa_{name.rsplit('_', 2)[1] if not name.startswith('kappa') else name[6:]}")
+        print(f"\n{name}")
+        for j, est in enumerate(ESTIMATORS):
+            ratio = f", / kappa {worst[name][j] / kappa[j]:.3f}" if kappa is not None else ""
+            print(f"  {est:>5s}: mean {np.round(e[:, j].mean(0), 3).tolist()}, std "
+                  f"{np.round(e[:, j].std(0, ddof=1), 3).tolist()}; worst RMS {worst[name][j]:.3f}{ratio}")  # fmt: skip
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
