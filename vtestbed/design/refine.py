@@ -151,6 +151,9 @@ def refine_design(
     history = [_record(result, cands)]
     for _ in range(rounds):
         new = neighbour_poses(robot, lab, _centres(cands, result), rng)
+        if not len(new):  # every draw left the lab's zone: nothing to add
+            history[-1] |= {"new_poses": 0, "new_tests": 0}
+            break
         try:
             extra = candidate_pool(robot, lab, poses=new, max_tension=max_tension, levels=levels, hooks=hooks,
                                    anchors=anchors, clearance=nominal)  # fmt: skip
