@@ -337,7 +337,9 @@ def main() -> None:
                         help="rounds of growing the pool around the minimax design (0: no refined designs; "
                              "default %(default)s)")  # fmt: skip
     parser.add_argument("--figure", help="write the comparison figure here (PNG)")
-    parser.add_argument("--table", action="store_true", help="print the 20-test minimax design of each panel")
+    parser.add_argument(
+        "--table", action="store_true", help="print the 20-test minimax and refined designs of each panel"
+    )
     parser.add_argument("--method", default="fgls", choices=("fgls", "gls_floor"),
                         help="estimator of every set's trials (the sequential loop itself always uses "
                              "fgls); gls_floor weights with the repeat scans' noise floor (default %(default)s)")  # fmt: skip
@@ -353,9 +355,10 @@ def main() -> None:
         tag = f"{tension:g}N"
         cells = run_panel(base, tag, tension, args, cache, shared)
         rows += summarise(cells, tag, args.trials)
-        if args.table:
-            print(f"\n20-test minimax design, tensions up to {tension:g} N:\n"
-                  + controller_table(cells[("minimax", 20)]["plan"], base.robot))  # fmt: skip
+        for kind in ("minimax", "refined") if args.table else ():
+            if (kind, 20) in cells:
+                print(f"\n20-test {LABELS.get(kind, kind)} design, tensions up to {tension:g} N:\n"
+                      + controller_table(cells[(kind, 20)]["plan"], base.robot))  # fmt: skip
     (cache / f"summary_trials{args.trials}_{args.method}.json").write_text(json.dumps(rows, indent=1))
     if args.figure:
         figure(rows, Path(args.figure))

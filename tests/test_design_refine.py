@@ -3,7 +3,7 @@
 * ``vtestbed poses design --refine`` writes a scenario whose tests run in the truth world (MuJoCo
   equilibrium, ray cast and its clearance check set to raise) and whose ``A``, recomputed from the
   scenario file, gives the reported worst std; the grown pool beats the start by a margin;
-* the new poses are seeded, within the joint limits and in the lab's zone;
+* the new poses are seeded, 1 deg inside the joint limits and in the lab's zone;
 * bad input names the option and its valid range.
 """
 
@@ -58,9 +58,16 @@ def test_neighbour_poses_are_seeded_within_limits_and_in_the_zone(robot, lab):
     q2 = refine.neighbour_poses(robot, lab, centres, np.random.default_rng(7))
     np.testing.assert_array_equal(q1, q2)
     assert len(q1) > 0.5 * 3 * len(refine.SCALES_DEG) * refine.DRAWS_PER_SCALE
-    assert (
-        np.all((q1 >= robot.lower) & (q1 <= robot.upper)) and pool.zone_constraints(lab).ok(robot, q1).all()
-    )
+    margin = np.radians(refine.LIMIT_MARGIN_DEG)
+    assert np.all((q1 >= robot.lower + margin - 1e-12) & (q1 <= robot.upper - margin + 1e-12))
+    assert pool.zone_constraints(lab).ok(robot, q1).all()
+    # a centre on a limit: its draws pile at the margin, never on the limit itself
+    candidates = pool.random_poses(robot, lab, 200, np.random.default_rng(4))
+    candidates[:, 1] = robot.lower[1]
+    on_limit = candidates[pool.zone_constraints(lab).ok(robot, candidates)][0]
+    q3 = refine.neighbour_poses(robot, lab, on_limit, np.random.default_rng(7))
+    at_margin = np.isclose(q3[:, 1], robot.lower[1] + margin, rtol=0, atol=1e-12)
+    assert at_margin.sum() >= 5 and q3[:, 1].min() >= robot.lower[1] + margin - 1e-12
     # every new pose is near a centre: within 5 standard deviations of the coarsest scale per joint
     near = np.abs(q1[:, None, :] - centres[None]).max(axis=2).min(axis=1)
     assert near.max() < 5 * np.radians(max(refine.SCALES_DEG))

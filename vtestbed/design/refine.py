@@ -5,7 +5,8 @@ design sits within about 1 % of the best *that pool* allows (the relaxation's bo
 best the lab allows: a five times larger pool lowers the worst std by 7-12 %. The optimum's tests
 lie near a few good poses, so the pool is grown where it matters: each round draws poses around
 the current design's poses and the relaxation's support (normal perturbations of every joint,
-standard deviations :data:`SCALES_DEG`, clipped to the joint limits, kept in the lab's zone), passes
+standard deviations :data:`SCALES_DEG`, clipped to :data:`LIMIT_MARGIN_DEG` inside the joint limits,
+kept in the lab's zone), passes
 them through the same nominal checks as the pool (:func:`~vtestbed.design.pool.candidate_pool`:
 singularity, scanner placement, clearance, wire direction, F/T range, at every hook, ring and
 tension level), appends them, and chooses again. Every round's exchange also starts from the
@@ -34,6 +35,10 @@ from .pool import NoFeasibleTestError, TestPool, candidate_pool, zone_constraint
 SCALES_DEG = (2.0, 6.0, 15.0)  # perturbation std per joint [deg]: fine, middle, coarse
 DRAWS_PER_SCALE = 10  # poses drawn per centre and scale
 MAX_ROUNDS = 20
+# New poses keep this far inside each joint limit [deg]. Clipping to the limit itself piles draws
+# onto it (the information often grows towards a limit, so the design would sit there), and a lab
+# does not command a pose onto its software limit: the loaded sag and the next jog would cross it.
+LIMIT_MARGIN_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -69,11 +74,14 @@ def merged(first: TestPool, second: TestPool) -> TestPool:
 def neighbour_poses(
     robot: RobotDescription, lab: LabSetup, centres: np.ndarray, rng: np.random.Generator
 ) -> np.ndarray:
-    """(P, dof) DH poses [rad] drawn around each centre at every scale, within the joint limits and the zone."""
+    """(P, dof) DH poses [rad] drawn around each centre at every scale, :data:`LIMIT_MARGIN_DEG` inside
+    the joint limits, with the block in the lab's zone."""
     if not isinstance(rng, np.random.Generator):
         raise OutOfRangeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     centres = np.atleast_2d(centres)
-    draws = [np.clip(c + rng.normal(0.0, np.radians(s), size=(DRAWS_PER_SCALE, robot.dof)), robot.lower, robot.upper)
+    margin = np.minimum(np.radians(LIMIT_MARGIN_DEG), (robot.upper - robot.lower) / 4)
+    low, high = robot.lower + margin, robot.upper - margin
+    draws = [np.clip(c + rng.normal(0.0, np.radians(s), size=(DRAWS_PER_SCALE, robot.dof)), low, high)
              for c in centres for s in SCALES_DEG]  # fmt: skip
     poses = np.vstack(draws)
     return poses[zone_constraints(lab).ok(robot, poses)]
