@@ -32,6 +32,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from bench_design_uncertainty import REPEATS  # the comparison's trials' repeat scans per test
 
 import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
@@ -45,7 +46,6 @@ from vtestbed.researcher.statics import ExactStatics
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "kr60_paper.toml"
-REPEATS = 3  # repeat scans per test, as the comparison's trials
 ESTIMATORS = ("fgls", "floor", "exact")
 _PREPARED: dict = {}
 
@@ -54,10 +54,15 @@ def set_scenario(name: str, cache: Path):
     """(scenario, n): the kappa set's first n tests (``kappa_N``) or a cached design (``DESIGN_N_TAG``)."""
     base = vt.load_scenario(PAPER)
     if name.startswith("kappa_"):
-        return base, int(name.split("_")[1])
+        return base, set_size(name)
     design, n, tag = name.rsplit("_", 2)
     plans = json.loads((cache / f"designs_{tag}.json").read_text())
-    return TestPlan.from_dict(plans[f"{design}_{n}"]["plan"]).scenario(base), int(n)
+    return TestPlan.from_dict(plans[f"{design}_{n}"]["plan"]).scenario(base), set_size(name)
+
+
+def set_size(name: str) -> int:
+    """The n of a set name: ``kappa_N`` or ``DESIGN_N_TAG``."""
+    return int(name.split("_")[1])
 
 
 def trial(args) -> np.ndarray:
@@ -105,7 +110,7 @@ def main() -> None:
     }  # (3,) per estimator
     print(f"# {args.trials} trials per set, seeds 16000+i; errors relative to k_true [%]")
     for name, e in err.items():
-        kappa = worst.get(f"kappa_{name.rsplit('_', 2)[1] if not name.startswith('kappa') else name[6:]}")
+        kappa = worst.get(f"kappa_{set_size(name)}")
         print(f"\n{name}")
         for j, est in enumerate(ESTIMATORS):
             ratio = f", / kappa {worst[name][j] / kappa[j]:.3f}" if kappa is not None else ""

@@ -251,6 +251,7 @@ def design(
     iterations: int = 400,
     bound: bool = True,
     base_information=None,
+    starts=None,
 ) -> MinimaxDesign:
     """Choose ``n`` distinct tests: exchange from greedy and from the rounded relaxation, keep the better.
 
@@ -258,21 +259,29 @@ def design(
     computed (greedy + exchange only). ``bound=False`` skips the relaxation for A/D/minimax too.
     ``base_information`` (n, n) [(N*m/rad)^2]: the information ``M0`` of tests already made
     (sequential design); the criteria and the bound are then those of the old and new tests together.
+    ``starts``: further named starts, name -> ``n`` indices into ``tests`` (e.g. an earlier choice
+    from a pool that grew, :mod:`vtestbed.design.refine`); each is exchanged too and kept if better.
     """
     a = _a_stack(tests)
     greedy = select_tests(a, n, stiffness_prior, criterion, "exchange", sigma_p, sigma_r,
                           base_information=base_information)  # fmt: skip
-    starts = {"greedy": _score(greedy, criterion)}
-    if criterion not in RELAXED or not bound:
-        return MinimaxDesign(greedy, None, starts)
-    s = 1.0 / _prior(stiffness_prior, a.shape[2])
-    base = None if base_information is None else np.asarray(base_information, dtype=float) * np.outer(s, s)
-    rel = relax(whitened(a, stiffness_prior, sigma_p, sigma_r), n, criterion, iterations, base=base)
-    top = np.argsort(-rel.weights, kind="stable")[:n]
-    rounded = _exchange_from(a, top, stiffness_prior, criterion, sigma_p, sigma_r, base_information)
-    starts["relaxation"] = _score(rounded, criterion)
-    better = rounded if _better(rounded, greedy, criterion) else greedy
-    return MinimaxDesign(better, rel, starts)
+    values = {"greedy": _score(greedy, criterion)}
+    better, rel = greedy, None
+    if criterion in RELAXED and bound:
+        s = 1.0 / _prior(stiffness_prior, a.shape[2])
+        base = (
+            None if base_information is None else np.asarray(base_information, dtype=float) * np.outer(s, s)
+        )
+        rel = relax(whitened(a, stiffness_prior, sigma_p, sigma_r), n, criterion, iterations, base=base)
+        top = np.argsort(-rel.weights, kind="stable")[:n]
+        rounded = _exchange_from(a, top, stiffness_prior, criterion, sigma_p, sigma_r, base_information)
+        values["relaxation"] = _score(rounded, criterion)
+        better = rounded if _better(rounded, greedy, criterion) else greedy
+    for name, start in (starts or {}).items():
+        other = _exchange_from(a, start, stiffness_prior, criterion, sigma_p, sigma_r, base_information)
+        values[name] = _score(other, criterion)
+        better = other if _better(other, better, criterion) else better
+    return MinimaxDesign(better, rel, values)
 
 
 def _score(sel: Selection, criterion: str) -> float:

@@ -28,7 +28,7 @@ from ..errors import OutOfRangeError
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription
 from .clearance import NominalClearance
-from .minimax import MinimaxDesign, _exchange_from, _score, design
+from .minimax import MinimaxDesign, design
 from .optimal import SIGMA_P, SIGMA_R
 from .pool import NoFeasibleTestError, TestPool, candidate_pool, zone_constraints
 
@@ -170,16 +170,10 @@ def refine_design(
             break
         history[-1] |= {"new_poses": len(new), "new_tests": len(extra)}
         cands = merged(cands, extra)
-        grown = design(cands.a, n, stiffness_prior, "minimax", sigma_p, sigma_r)
-        previous = _exchange_from(
-            cands.a, result.selection.indices, stiffness_prior, "minimax", sigma_p, sigma_r
-        )
-        starts = grown.starts | {"previous round": _score(previous, "minimax")}
-        best = (
-            previous if _score(previous, "minimax") < _score(grown.selection, "minimax") else grown.selection
-        )
-        gain = 1.0 - _score(best, "minimax") / _score(result.selection, "minimax")
-        result = MinimaxDesign(best, grown.relaxation, starts)
+        before = result.selection.report.minimax_value
+        result = design(cands.a, n, stiffness_prior, "minimax", sigma_p, sigma_r,
+                        starts={"previous round": result.selection.indices})  # fmt: skip
+        gain = 1.0 - result.selection.report.minimax_value / before
         history.append(_record(result, cands))
         if gain < min_gain:
             break
