@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_design_uncertainty import identify_trials, measure, random_scenario, scenario_a
+from bench_design_uncertainty import identify_trials, measure, measured_path, random_scenario, scenario_a
 
 import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare
@@ -130,14 +130,12 @@ def sequential(cands, base, k_true: np.ndarray, prior: np.ndarray) -> tuple[Test
     return plan_of("sequential", [cands.tests[i] for i in chosen]), log
 
 
-def refined_designs(base, cands, k: np.ndarray, tension: float, rounds: int) -> dict:
+def refined_designs(base, cands, k: np.ndarray, rounds: int) -> dict:
     """name -> (TestPlan, counts, extra): the minimax design of each n with its pool grown ``rounds`` times."""
     out = {}
     for n in COUNTS:
         t0 = time.perf_counter()
-        grown = refine_design(
-            base.robot, cands, n, k, np.random.default_rng([16, n]), base.lab, rounds, max_tension=tension
-        )
+        grown = refine_design(base.robot, cands, n, k, np.random.default_rng([16, n]), base.lab, rounds)
         plan = plan_of("refined", [grown.pool.tests[i] for i in grown.result.selection.indices])
         bound = float(np.sqrt(grown.result.relaxation.bound))
         out[f"refined_{n}"] = (plan, (n,), {"bound": bound, "refine_rounds": rounds, **grown.to_dict()})
@@ -167,7 +165,7 @@ def panel_designs(base, tension: float, tag: str, n_poses: int, cache: Path, rou
             for (c, n), d in fixed_designs(cands, k).items()
         }
     if "refined_20" in missing:
-        out |= refined_designs(base, cands, k, tension, rounds)
+        out |= refined_designs(base, cands, k, rounds)
     for name in (m for m in missing if m in PRIORS):
         t0 = time.perf_counter()
         plan, log = sequential(cands, base, k, k * PRIORS[name])
@@ -209,7 +207,7 @@ def shared_sets(base, trials: int, cache: Path, method: str = "fgls") -> dict:
     cells = {}
     for name, fn in (("kappa", lambda: base), ("random", lambda: random_scenario(base, 20, 7))):
         a_path = cache / f"{name}_a.npy"  # the random set's truth checks take a minute: keep its A
-        scenario = None if a_path.exists() and (cache / f"{name}_trials{trials}.npz").exists() else fn()
+        scenario = None if a_path.exists() and measured_path(name, trials, cache).exists() else fn()
         data = measure(name, scenario, trials, cache)
         if scenario is not None:
             np.save(a_path, scenario_a(scenario))

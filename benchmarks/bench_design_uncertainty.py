@@ -88,27 +88,53 @@ def test_sets(cache: Path, pool: int) -> dict:
     return sets
 
 
+def measured_path(name: str, trials: int, cache: Path) -> Path:
+    """Where :func:`measure` keeps a set's trials."""
+    return cache / f"{name}_trials{trials}_r{REPEATS}.npz"
+
+
+def _fewer_trials(name: str, trials: int, cache: Path) -> dict:
+    """The largest cached run of the set with fewer than ``trials`` trials (empty: none). Trial i
+    always has seed 16_000 + i, so a longer run starts with the shorter one's trials."""
+    runs = {}
+    for path in cache.glob(f"{name}_trials*_r{REPEATS}.npz"):
+        count = path.name[len(name) + len("_trials") :].split("_r")[0]
+        if count.isdigit() and int(count) < trials:
+            runs[int(count)] = path
+    return dict(np.load(runs[max(runs)])) if runs else {}
+
+
 def measure(name: str, scenario, trials: int, cache: Path) -> dict:
     """Cached (trials, T, ...) Jacobians, wrenches, displacements, the fitted frames of each
-    test's unloaded scan and its REPEATS repeats (trials, T, REPEATS + 1, 4, 4), and the truth."""
-    path = cache / f"{name}_trials{trials}_r{REPEATS}.npz"
+    test's unloaded scan and its REPEATS repeats (trials, T, REPEATS + 1, 4, 4), and the truth.
+
+    A cached shorter run of the set is extended (its trials are the first ones of the longer run).
+    """
+    path = measured_path(name, trials, cache)
     if path.exists():
         return dict(np.load(path))
     t0 = time.perf_counter()
+    earlier = _fewer_trials(name, trials, cache)
+    done = len(earlier.get("jacobians", ()))
     prepared = prepare(scenario)
     noise = scenario.scanner.noise_model
     jac, wr, disp, frames = [], [], [], []
-    for i in range(trials):
+    for i in range(done, trials):
         ms = measure_trial(prepared, 16_000 + i)
         j, w, d = stacked(ms)
         jac.append(j), wr.append(w), disp.append(d)
         per_test = repeat_frames(prepared, 16_000 + i, prepared.identification_tests(), ms, noise, REPEATS)
         frames.append(list(per_test.values()))
-    out = dict(jacobians=np.array(jac), wrenches=np.array(wr), displacements=np.array(disp),
-               repeat_frames=np.array(frames), k_true=prepared.stiffness_true)  # fmt: skip
+    new = dict(jacobians=np.array(jac), wrenches=np.array(wr), displacements=np.array(disp),
+               repeat_frames=np.array(frames))  # fmt: skip
+    out = {key: np.concatenate([earlier[key], v]) if done else v for key, v in new.items()}
+    out["k_true"] = prepared.stiffness_true
+    if done and not np.array_equal(earlier["k_true"], out["k_true"]):
+        raise SystemExit(f"{name}: the cached {done} trials have another truth; remove them from {cache}")
     np.savez(path, **out)
     print(
-        f"  {name}: {len(prepared.tests)} tests x {trials} trials in {time.perf_counter() - t0:.0f} s",
+        f"  {name}: {len(prepared.tests)} tests x {trials - done} trials in {time.perf_counter() - t0:.0f} s"
+        + (f" (the first {done} from the cache)" if done else ""),
         flush=True,
     )
     return out

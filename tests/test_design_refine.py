@@ -90,3 +90,20 @@ def test_bad_input_names_the_option_and_range(robot, lab, capsys):
     with pytest.raises(SystemExit) as exc:
         main([*base, "--refine", "21"])
     assert exc.value.code == 2 and "--refine" in capsys.readouterr().err
+
+
+def test_the_grown_pool_keeps_the_options_the_pool_was_built_with(robot, lab):
+    # a pool restricted to one hook, two rings and two levels up to 300 N: every new test keeps them
+    start = pool.candidate_pool(robot, lab, n_poses=6, rng=np.random.default_rng(8), max_tension=300.0,
+                                levels=2, hooks=["hook_x"], anchors=["ring_2", "ring_7"], clearance=False)  # fmt: skip
+    assert start.options.max_tension == 300.0 and start.options.levels == 2
+    assert start.options.hooks == ("hook_x",) and start.options.clearance is None
+    grown = refine.refine_design(robot, start, 3, K, np.random.default_rng(2), lab, rounds=1)
+    assert len(grown.pool) > len(start) and grown.pool.options is start.options
+    new = grown.pool.tests[len(start) :]
+    assert {t.hook for t in new} == {"hook_x"} and {t.anchor for t in new} <= {"ring_2", "ring_7"}
+    assert {t.tension for t in new} <= {150.0, 300.0}
+    # a pool assembled by hand records nothing to grow with: a clear error
+    bare = pool.TestPool(start.tests, start.a, start.n_poses, start.tensions, start.refused)
+    with pytest.raises(OutOfRangeError, match="needs a pool from candidate_pool"):
+        refine.refine_design(robot, bare, 3, K, np.random.default_rng(2), lab, rounds=1)

@@ -89,8 +89,7 @@ def _cmd_design(args) -> int:
                                 "or --no-clearance)") from None  # fmt: skip
         if args.refine:  # grow the pool around the design's poses (design/refine.py)
             grown = refine_design(robot, cands, args.tests, prior, np.random.default_rng([args.seed, 1]), lab,
-                           args.refine, max_tension=args.tension, levels=args.tension_levels, hooks=hooks,
-                           anchors=anchors, clearance=nominal, sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
+                                  args.refine, sigma_p=args.sigma_p, sigma_r=args.sigma_r)  # fmt: skip
             result, cands = grown.result, grown.pool
             data["refine"] = grown.to_dict()
         else:

@@ -105,6 +105,18 @@ def tension_levels(lab: LabSetup, max_tension: float | None = None, levels: int 
 
 
 @dataclass(frozen=True, eq=False)
+class PoolOptions:
+    """How :func:`candidate_pool` built a pool: what further poses need to get the same tests and
+    checks (:func:`vtestbed.design.refine.refine_design` grows a pool with them)."""
+
+    max_tension: float  # N, the top tension level
+    levels: int
+    hooks: tuple[str, ...] | None  # None: every hook of the block
+    anchors: tuple[str, ...] | None  # None: every ring of the table
+    clearance: NominalClearance | None  # None: no clearance check
+
+
+@dataclass(frozen=True, eq=False)
 class TestPool:
     """Candidate tests and their stacked ``A`` matrices.
 
@@ -118,6 +130,7 @@ class TestPool:
     n_poses: int  # poses drawn
     tensions: tuple[float, ...]  # N, the levels offered
     refused: dict  # counts: "near singularity", "pose clearance", "test clearance", "sensor range"
+    options: PoolOptions | None = None  # how it was built (None: assembled by hand)
 
     def __len__(self) -> int:
         return len(self.tests)
@@ -216,7 +229,9 @@ def candidate_pool(
             f"no feasible test among {drawn} poses x hooks x rings x {len(tensions)} tensions "
             f"(refused: {refused}); draw more poses or relax the lab (docs/clearance.md)"
         )
-    return TestPool(tuple(tests), np.concatenate(blocks), drawn, tensions, refused)
+    options = PoolOptions(tensions[-1], levels, None if hooks is None else tuple(hooks),
+                          None if anchors is None else tuple(anchors), nominal)  # fmt: skip
+    return TestPool(tuple(tests), np.concatenate(blocks), drawn, tensions, refused, options)
 
 
 def kappa_selection(

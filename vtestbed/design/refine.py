@@ -27,7 +27,6 @@ import numpy as np
 from ..errors import OutOfRangeError
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription
-from .clearance import NominalClearance
 from .minimax import MinimaxDesign, design
 from .optimal import SIGMA_P, SIGMA_R
 from .pool import NoFeasibleTestError, TestPool, candidate_pool, zone_constraints
@@ -68,7 +67,7 @@ def merged(first: TestPool, second: TestPool) -> TestPool:
         key: first.refused.get(key, 0) + second.refused.get(key, 0) for key in first.refused | second.refused
     }
     return TestPool(first.tests + second.tests, np.concatenate([first.a, second.a]),
-                    first.n_poses + second.n_poses, first.tensions, refused)  # fmt: skip
+                    first.n_poses + second.n_poses, first.tensions, refused, first.options)  # fmt: skip
 
 
 def neighbour_poses(
@@ -117,11 +116,6 @@ def refine_design(
     lab: LabSetup = PAPER_LAB,
     rounds: int = 4,
     min_gain: float = 0.005,
-    max_tension: float | None = None,
-    levels: int = 4,
-    hooks=None,
-    anchors=None,
-    clearance: bool | NominalClearance = True,
     sigma_p: float = SIGMA_P,
     sigma_r: float = SIGMA_R,
 ) -> RefinedDesign:
@@ -131,8 +125,8 @@ def refine_design(
     ----------
     robot, lab : the nominal robot and the lab ``cands`` was built for.
     cands : TestPool
-        The starting pool; ``max_tension``, ``levels``, ``hooks``, ``anchors`` and ``clearance``
-        must be the ones it was built with (the new poses get the same tests and checks).
+        The starting pool, from :func:`~vtestbed.design.pool.candidate_pool`: the new poses get
+        the tests and checks it records (``cands.options``: tension levels, hooks, rings, clearance).
     n : int
         Tests to choose.
     stiffness_prior : (dof,) [N*m/rad] or a StiffnessPrior.
@@ -154,7 +148,12 @@ def refine_design(
         )
     if not 0.0 <= min_gain < 1.0:
         raise OutOfRangeError(f"min_gain = {min_gain!r} is outside the valid range [0, 1)")
-    nominal = NominalClearance(robot, lab, lab.scanner_distance) if clearance is True else clearance
+    built = cands.options
+    if built is None:
+        raise OutOfRangeError(
+            "refine_design needs a pool from candidate_pool (cands.options records its tension levels, "
+            "hooks, rings and clearance check); this one was assembled by hand"
+        )
     result = design(cands.a, n, stiffness_prior, "minimax", sigma_p, sigma_r)
     history = [_record(result, cands)]
     for _ in range(rounds):
@@ -163,8 +162,9 @@ def refine_design(
             history[-1] |= {"new_poses": 0, "new_tests": 0}
             break
         try:
-            extra = candidate_pool(robot, lab, poses=new, max_tension=max_tension, levels=levels, hooks=hooks,
-                                   anchors=anchors, clearance=nominal)  # fmt: skip
+            extra = candidate_pool(robot, lab, poses=new, max_tension=built.max_tension, levels=built.levels,
+                                   hooks=built.hooks, anchors=built.anchors,
+                                   clearance=built.clearance or False)  # fmt: skip
         except NoFeasibleTestError:
             history[-1] |= {"new_poses": len(new), "new_tests": 0}
             break
