@@ -17,9 +17,10 @@ Printed per set and estimator: each joint's mean error and std [%], the worst jo
 and its ratio to the kappa set's under the same estimator. The designs come from the comparison's
 cache (``--cache``; run ``bench_design_comparison.py`` first).
 
-Run: .venv/bin/python benchmarks/bench_design_bias.py [--trials 40] [--workers 2]
+Run: .venv/bin/python benchmarks/bench_design_bias.py [--trials 100] [--workers 2]
        [--sets kappa_12,kappa_20,minimax_12_588.6N,refined_12_588.6N,minimax_20_588.6N,refined_20_588.6N]
-(8 min on 2 workers for these six sets and the four 200 N ones; docs/poses.md, "The bias, removed").
+(18 min on 2 workers at 100 trials for these six sets and the four 200 N ones; docs/poses.md,
+"The bias, removed").
 """
 
 from __future__ import annotations
@@ -90,7 +91,7 @@ def trial(args) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=40)
+    parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--cache", default=str(ROOT / "runs" / "bench_design_comparison"),
                         help="bench_design_comparison.py's cache (its designs_TAG.json)")  # fmt: skip

@@ -29,11 +29,12 @@ SIGMA_P / SIGMA_R, at the truth). Panels: tensions up to 200 N and up to the lab
 (``--panels 200,limit``); kappa and random are the 200 N sets in both. Designs and measured trials
 are cached in ``--cache`` (shared machinery: ``bench_design_uncertainty.measure``).
 
-Run: .venv/bin/python benchmarks/bench_design_comparison.py [--trials 40] [--panels 200,limit]
-       [--figure docs/img/poses/design_comparison.png] [--table] [--method fgls|gls_floor] [--refine 4]
-(one worker: 8.5 min for both panels from scratch on this shared machine without the refined
-designs, about 30 min more with them; seconds from the cache;
-docs/poses.md, "Comparison through the full pipeline").
+Run: .venv/bin/python benchmarks/bench_design_comparison.py [--trials 100] [--panels 200,limit]
+       [--figure docs/img/poses/design_comparison.png] [--table] [--joints] [--method fgls|gls_floor]
+       [--refine 4]
+(one worker, both panels from scratch on this shared machine: about 1 h of measuring at 100
+trials and 30 min for the refined designs; a cached shorter run is extended, not re-measured;
+seconds from the cache; docs/poses.md, "Comparison through the full pipeline").
 """
 
 from __future__ import annotations
@@ -44,12 +45,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_design_uncertainty import bound as crlb_bound
 from bench_design_uncertainty import identify_trials, measure, measured_path, random_scenario, scenario_a
 
 import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare
 from vtestbed.campaigns.posesets import TestPlan
-from vtestbed.design import minimax, pool
+from vtestbed.design import crlb, minimax, pool
 from vtestbed.design import optimal as design
 from vtestbed.design.priors import PAPER_TABLE5
 from vtestbed.design.refine import refine_design
@@ -183,6 +185,31 @@ def worst_rms(err: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
     return np.sqrt(np.mean(err[idx] ** 2, axis=1)).max(axis=1)
 
 
+def joint_check(name: str, scenario, data: dict, a: np.ndarray, method: str) -> str:
+    """Per joint [%], a set's Monte Carlo std against its predictions: the design's (``SIGMA_P`` /
+    ``SIGMA_R``) and the Cramer-Rao bound (the scan's full covariance, drift correlation included).
+    Then the scan noise itself: the displacements' covariance over the trials (B's axes, as the
+    researcher measures them), pooled over the tests and whitened by the bound's model, whose
+    eigenvalues are 1 where the model is right."""
+    n, k = len(a), data["k_true"]
+    err = identify_trials(data, n, method)[0] / k - 1
+    rows = {"MC std": err.std(axis=0, ddof=1), "design": design.evaluate(a, k).relative_std,
+            "CRLB": crlb_bound(scenario, n, k)}  # fmt: skip
+    spacing = scenario.scanner.spacing or crlb.DEFAULT_SPACING_M
+    scan = crlb.nominal_scan(scenario.lab.block.edge, scenario.scanner.distance, spacing_m=spacing)
+    model = 2.0 * crlb.frame_covariance(scan, scenario.scanner.noise_model)  # a displacement, B's axes
+    e = data["displacements"] - data["displacements"].mean(axis=0)
+    pooled = np.einsum("stk,stl->kl", e, e) / (e.shape[1] * (e.shape[0] - 1))
+    whiten = np.linalg.cholesky(np.linalg.inv(model))
+    text = [f"  {name} ({n} tests, {len(err)} trials), per joint [%]:"]
+    text += [
+        f"    {label:>7s} " + " ".join(f"{100 * v:6.3f}" for v in values) for label, values in rows.items()
+    ]
+    text.append("    scan noise, pooled covariance whitened by the model's: eigenvalues "
+                + " ".join(f"{v:.2f}" for v in np.linalg.eigvalsh(whiten.T @ pooled @ whiten)))  # fmt: skip
+    return "\n".join(text)
+
+
 def run_panel(base, tag: str, tension: float, args, cache: Path, shared: dict) -> dict:
     """Measure every set of one panel; returns (design, n) -> {"err", "pred", "bound"}."""
     print(f"\npanel {tag}: tensions up to {tension:g} N", flush=True)
@@ -199,6 +226,8 @@ def run_panel(base, tag: str, tension: float, args, cache: Path, shared: dict) -
             pred = design.evaluate(a[:n], data["k_true"]).minimax_value
             cells[(design_name, n)] = {"err": err, "pred": pred, "bound": extra.get("bound"),
                                        "plan": plan, "extra": extra}  # fmt: skip
+        if args.joints and design_name in ("minimax", "refined"):
+            print(joint_check(f"{name}_{tag}", scenario, data, a, args.method), flush=True)
     return cells
 
 
@@ -249,6 +278,12 @@ def summarise(cells: dict, tag: str, trials: int) -> list[dict]:
         print(f"{name:>11s} {n:3d} {worst * 100:9.3f} {f'[{lo * 100:.3f}, {hi * 100:.3f}]':>15s} {text}"
               f" {joint:5d} {c['pred'] * 100:7.3f} {bound}")  # fmt: skip
         rows.append(row)
+    for n in COUNTS:  # what growing the pool buys, paired
+        if ("refined", n) in cells and ("minimax", n) in cells:
+            ratio = worst_rms(cells[("refined", n)]["err"]) / worst_rms(cells[("minimax", n)]["err"])
+            lo, hi = np.percentile(worst_rms(cells[("refined", n)]["err"], idx)
+                                   / worst_rms(cells[("minimax", n)]["err"], idx), [2.5, 97.5])  # fmt: skip
+            print(f"refined / minimax at {n} tests: {ratio:.3f} [{lo:.3f}, {hi:.3f}]")
     for run in PRIORS:
         sequential_summary(cells, run, idx)
     return rows
@@ -321,7 +356,7 @@ def controller_table(plan: TestPlan, robot) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--trials", type=int, default=40, help="full-pipeline trials per set (default %(default)s)"
+        "--trials", type=int, default=100, help="full-pipeline trials per set (default %(default)s)"
     )
     parser.add_argument(
         "--pool", type=int, default=400, help="random poses of the design pool (default %(default)s)"
@@ -338,6 +373,9 @@ def main() -> None:
     parser.add_argument(
         "--table", action="store_true", help="print the 20-test minimax and refined designs of each panel"
     )
+    parser.add_argument("--joints", action="store_true",
+                        help="print each minimax and refined set's per-joint Monte Carlo std beside the design's "
+                             "prediction and the Cramer-Rao bound")  # fmt: skip
     parser.add_argument("--method", default="fgls", choices=("fgls", "gls_floor"),
                         help="estimator of every set's trials (the sequential loop itself always uses "
                              "fgls); gls_floor weights with the repeat scans' noise floor (default %(default)s)")  # fmt: skip

@@ -91,3 +91,21 @@ def test_controller_table_reads_back_as_the_designed_poses(small, robot, tmp_pat
     assert list(sc.load.hooks) == [t.hook for t in tests] and list(sc.load.anchors) == [
         t.anchor for t in tests
     ]
+
+
+def test_measure_extends_a_cached_shorter_run_to_what_a_fresh_run_gives(small, tmp_path):
+    # two designed tests through the full pipeline: 1 trial cached, extended to 2, against 2 fresh
+    from bench_design_uncertainty import measure
+
+    base = load_scenario(PAPER)
+    tests = minimax.design(small.a, 2, K, "minimax").selection.indices
+    scenario = bench.plan_of("x", [small.tests[i] for i in tests]).scenario(base)
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    measure("x", scenario, 1, tmp_path / "a")
+    extended = measure("x", scenario, 2, tmp_path / "a")
+    fresh = measure("x", scenario, 2, tmp_path / "b")
+    assert extended["displacements"].shape == (2, 2, 6) and extended["repeat_frames"].shape[:2] == (2, 2)
+    for key, value in fresh.items():
+        np.testing.assert_array_equal(extended[key], value, err_msg=key)
+    # the second trial is not a copy of the first: the extension measured it with its own seed
+    assert not np.array_equal(extended["displacements"][0], extended["displacements"][1])
