@@ -172,6 +172,28 @@ def test_predicted_std_matches_the_virtual_lab_scatter(robot, lab):
         f"virtual-lab scatter / design prediction per joint: {np.round(ratio, 2)}"
     )
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5))
+    # the full 6 x 6 of the same errors (B's axes) against the Cramer-Rao model of the scan
+    # (design.crlb: point noise plus the drift, whose lever arm correlates translation and
+    # rotation by about 0.3): whitened by the model, every eigenvalue is 1 within the scatter of
+    # 240 draws (about 0.7-1.35); the same model without that correlation is refused
+    from vtestbed.design import crlb
+
+    sc = prepared.scenario
+    scan = crlb.nominal_scan(
+        lab.block.edge, sc.scanner.distance, spacing_m=sc.scanner.spacing or crlb.DEFAULT_SPACING_M
+    )
+    model = 2.0 * crlb.frame_covariance(scan, sc.scanner.noise_model)
+    observed = errors.T @ errors / len(errors)
+
+    def eigenvalues(cov):
+        whiten = np.linalg.cholesky(np.linalg.inv(cov))
+        return np.linalg.eigvalsh(whiten.T @ observed @ whiten)
+
+    print(f"whitened by the model: {np.round(eigenvalues(model), 2)}, "
+          f"without its correlation: {np.round(eigenvalues(np.diag(np.diag(model))), 2)}")  # fmt: skip
+    assert np.all((eigenvalues(model) > 0.65) & (eigenvalues(model) < 1.45))
+    uncorrelated = eigenvalues(np.diag(np.diag(model)))
+    assert uncorrelated.min() < 0.65 or uncorrelated.max() > 1.45
 
 
 def test_bad_input_is_refused(robot, candidates):
