@@ -175,6 +175,31 @@ def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.nda
     return np.array(ks), np.array(stds)
 
 
+def joint_check(name: str, scenario, data: dict, a: np.ndarray, method: str) -> str:
+    """Per joint [%], a set's Monte Carlo std against its predictions: the design's (``SIGMA_P`` /
+    ``SIGMA_R``) and the Cramer-Rao bound (the scan's full covariance, drift correlation included).
+    Then the scan noise itself: the displacements' covariance over the trials (B's axes, as the
+    researcher measures them), pooled over the tests and whitened by the bound's model, whose
+    eigenvalues are 1 where the model is right."""
+    n, k = len(a), data["k_true"]
+    err = identify_trials(data, n, method)[0] / k - 1
+    rows = {"MC std": err.std(axis=0, ddof=1), "design": design.evaluate(a, k).relative_std,
+            "CRLB": bound(scenario, n, k)}  # fmt: skip
+    spacing = scenario.scanner.spacing or crlb.DEFAULT_SPACING_M
+    scan = crlb.nominal_scan(scenario.lab.block.edge, scenario.scanner.distance, spacing_m=spacing)
+    model = 2.0 * crlb.frame_covariance(scan, scenario.scanner.noise_model)  # a displacement, B's axes
+    e = data["displacements"] - data["displacements"].mean(axis=0)
+    pooled = np.einsum("stk,stl->kl", e, e) / (e.shape[1] * (e.shape[0] - 1))
+    whiten = np.linalg.cholesky(np.linalg.inv(model))
+    text = [f"  {name} ({n} tests, {len(err)} trials), per joint [%]:"]
+    text += [
+        f"    {label:>7s} " + " ".join(f"{100 * v:6.3f}" for v in values) for label, values in rows.items()
+    ]
+    text.append("    scan noise, pooled covariance whitened by the model's: eigenvalues "
+                + " ".join(f"{v:.2f}" for v in np.linalg.eigvalsh(whiten.T @ pooled @ whiten)))  # fmt: skip
+    return "\n".join(text)
+
+
 def evaluate(data: dict, n: int, method: str) -> dict:
     """Per joint: MC std, mean reported std and its variation between trials (std / mean),
     RMS error (relative), z-score std and mean."""
