@@ -14,8 +14,10 @@ first n tests:
   weight and the measured sensor load, what ``vtestbed diagnose`` takes as its baseline).
 
 Printed per set and estimator: each joint's mean error and std [%], the worst joint's RMS error
-and its ratio to the kappa set's under the same estimator. The designs come from the comparison's
-cache (``--cache``; run ``bench_design_comparison.py`` first).
+and its ratio to the kappa set's under the same estimator, and the std of each joint's z-score
+(error / reported std; honest within [0.8, 1.25], issue 16). The designs come from the
+comparison's cache (``--cache``; run ``bench_design_comparison.py`` first); ``random_N`` is the
+comparison's random clear tests.
 
 Run: .venv/bin/python benchmarks/bench_design_bias.py [--trials 100] [--workers 2]
        [--sets kappa_12,kappa_20,minimax_12_588.6N,refined_12_588.6N,minimax_20_588.6N,refined_20_588.6N]
@@ -33,7 +35,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from bench_design_uncertainty import REPEATS  # the comparison's trials' repeat scans per test
+from bench_design_uncertainty import HONEST, REPEATS, random_scenario
 
 import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
@@ -52,10 +54,13 @@ _PREPARED: dict = {}
 
 
 def set_scenario(name: str, cache: Path):
-    """(scenario, n): the kappa set's first n tests (``kappa_N``) or a cached design (``DESIGN_N_TAG``)."""
+    """(scenario, n): the kappa set's first n tests (``kappa_N``), the random set's (``random_N``) or
+    a cached design (``DESIGN_N_TAG``)."""
     base = vt.load_scenario(PAPER)
     if name.startswith("kappa_"):
         return base, set_size(name)
+    if name.startswith("random_"):
+        return random_scenario(base, 20, 7), set_size(name)
     design, n, tag = name.rsplit("_", 2)
     plans = json.loads((cache / f"designs_{tag}.json").read_text())
     return TestPlan.from_dict(plans[f"{design}_{n}"]["plan"]).scenario(base), set_size(name)
@@ -67,7 +72,7 @@ def set_size(name: str) -> int:
 
 
 def trial(args) -> np.ndarray:
-    """(3, n_joints) relative errors of one trial's first n tests under each estimator."""
+    """(2, 3, n_joints): one trial's relative errors and reported relative stds under each estimator."""
     name, cache, seed = args
     if name not in _PREPARED:
         scenario, n = set_scenario(name, cache)
@@ -81,12 +86,13 @@ def trial(args) -> np.ndarray:
     k_true = prepared.stiffness_true
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        k_fgls = identify(*stacked(ms), method="fgls").stiffness
-    out = [k_fgls / k_true - 1]
+        res = identify(*stacked(ms), method="fgls")
+    out, std = [res.stiffness / k_true - 1], [res.stiffness_std / res.stiffness]
     for statics in (None, ExactStatics(prepared.kinematics, prepared.setup)):
         fit = fit_model(ModelContext(ms, prepared.setup, prepared.kinematics, statics), white, [])
         out.append(1.0 / fit.compliance / k_true - 1)
-    return np.array(out)
+        std.append(fit.compliance_std / fit.compliance)  # std(k)/k = std(c)/c (delta method)
+    return np.array([out, std])
 
 
 def main() -> None:
@@ -103,9 +109,10 @@ def main() -> None:
     jobs = [(name, cache, 16_000 + i) for name in names for i in range(args.trials)]
     with ProcessPoolExecutor(args.workers) as pool:
         errs = list(pool.map(trial, jobs, chunksize=args.trials))
-    err = {
-        name: np.array(errs[k * args.trials : (k + 1) * args.trials]) * 100 for k, name in enumerate(names)
-    }
+    runs = {name: np.array(errs[k * args.trials : (k + 1) * args.trials]) for k, name in enumerate(names)}
+    err = {name: r[:, 0] * 100 for name, r in runs.items()}  # (trials, estimator, joint) [%]
+    # z = (k - k_true) / std(k), relative: err / (reported std / k) * (k / k_true)
+    z = {name: r[:, 0] / (r[:, 1] * (1 + r[:, 0])) for name, r in runs.items()}
     worst = {
         name: np.sqrt(np.mean(e**2, axis=0)).max(axis=1) for name, e in err.items()
     }  # (3,) per estimator
@@ -116,7 +123,13 @@ def main() -> None:
         for j, est in enumerate(ESTIMATORS):
             ratio = f", / kappa {worst[name][j] / kappa[j]:.3f}" if kappa is not None else ""
             print(f"  {est:>5s}: mean {np.round(e[:, j].mean(0), 3).tolist()}, std "
-                  f"{np.round(e[:, j].std(0, ddof=1), 3).tolist()}; worst RMS {worst[name][j]:.3f}{ratio}")  # fmt: skip
+                  f"{np.round(e[:, j].std(0, ddof=1), 3).tolist()}; worst RMS {worst[name][j]:.3f}{ratio}; "
+                  f"z-score std {np.round(z[name][:, j].std(0, ddof=1), 2).tolist()}")  # fmt: skip
+    print(f"\ncells (set x joint) with a z-score std in [{HONEST[0]}, {HONEST[1]}]:")
+    for j, est in enumerate(ESTIMATORS):
+        zs = np.array([z[name][:, j].std(0, ddof=1) for name in names])
+        inside = int(np.sum((zs >= HONEST[0]) & (zs <= HONEST[1])))
+        print(f"  {est:>5s}: {inside} of {zs.size} (range {zs.min():.2f}-{zs.max():.2f})")
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
 
 
