@@ -17,7 +17,7 @@ from .influence import Influence, joint_influence
 from .kappa import CriterionValue, Optimum, criterion, inv_kappa_batch, optimize, paper_optimum
 from .minimax import MinimaxDesign, Relaxation, design, relax
 from .optimal import CandidateTest, DesignReport, Selection, candidate_tests, evaluate, select_tests
-from .pool import TestPool, candidate_pool, kappa_selection, random_poses
+from .pool import PoolOptions, TestPool, candidate_pool, kappa_selection, random_poses
 from .priors import NAMED_PRIORS, PAPER_TABLE5, StiffnessPrior, stiffness_prior
 from .refine import RefinedDesign, refine_design
 from .regions import PoseConstraints, PoseSet, Region, find_regions, joint_plane_map, sample_poses
@@ -33,6 +33,7 @@ __all__ = [
     "MinimaxDesign",
     "NextTests",
     "Optimum",
+    "PoolOptions",
     "PoseConstraints",
     "PoseSet",
     "RefinedDesign",
