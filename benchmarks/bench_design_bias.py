@@ -21,8 +21,9 @@ comparison's random clear tests.
 
 Run: .venv/bin/python benchmarks/bench_design_bias.py [--trials 100] [--workers 2]
        [--sets kappa_12,kappa_20,minimax_12_588.6N,refined_12_588.6N,minimax_20_588.6N,refined_20_588.6N]
-(18 min on 2 workers at 100 trials for these six sets and the four 200 N ones; docs/poses.md,
-"The bias, removed").
+(18 min on 2 workers at 100 trials for these six sets and the four 200 N ones, 35 min for those
+and random_12,random_20 with other jobs on the cores; docs/poses.md, "The bias, removed";
+docs/uncertainty.md for the z-scores).
 """
 
 from __future__ import annotations
