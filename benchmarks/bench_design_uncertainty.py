@@ -45,7 +45,7 @@ from vtestbed.design import crlb
 from vtestbed.design import optimal as design
 from vtestbed.researcher.identify import identify
 from vtestbed.researcher.kinematics import ArmKinematics
-from vtestbed.researcher.measure import stacked
+from vtestbed.researcher.measure import gls_floor_covariance, stacked
 from vtestbed.researcher.noise_floor import noise_floor_from_frames
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,7 +160,8 @@ def bound(scenario, n: int, k_true: np.ndarray) -> np.ndarray:
 
 def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.ndarray]:
     """(trials, n_joints) estimates and reported stds [N*m/rad] from each trial's first n tests
-    (``gls_floor``: weighted with the noise floor of those n tests' repeat scans)."""
+    (``gls_floor``: weighted with the noise floor of those n tests' repeat scans, as
+    :func:`~vtestbed.researcher.measure.gls_floor_covariance` gives it to the tool)."""
     ks, stds = [], []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -169,7 +170,8 @@ def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.nda
         ):
             cov = None
             if method == "gls_floor":
-                cov = noise_floor_from_frames({f"T{t + 1:03d}": list(fr[t]) for t in range(n)}).covariance
+                floor = noise_floor_from_frames({f"T{t + 1:03d}": list(fr[t]) for t in range(n)})
+                cov = gls_floor_covariance(floor)
             res = identify(j[:n], w[:n], d[:n], method=method, displacement_cov=cov)
             ks.append(res.stiffness), stds.append(res.stiffness_std)
     return np.array(ks), np.array(stds)

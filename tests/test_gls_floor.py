@@ -45,13 +45,15 @@ def test_gls_floor_is_the_dense_gls_with_the_floor_covariance(dataset):
     assert result.method == "gls_floor" and floor.n_samples == 3 * N_TESTS
     jac, wrench, disp = stacked(measurements)
     a, d = stack(jac, wrench), disp.reshape(-1)
-    w = np.kron(np.eye(N_TESTS), np.linalg.inv(floor.covariance))  # dense (6T, 6T) reference
+    # the floor's covariance times its sampling inflation nu / (nu - 7), nu = 24 repeat samples
+    cov = floor.covariance * 24 / 17
+    w = np.kron(np.eye(N_TESTS), np.linalg.inv(cov))  # dense (6T, 6T) reference
     normal = a.T @ w @ a
     c_ref = np.linalg.solve(normal, a.T @ w @ d)
     std_ref = np.sqrt(np.diag(np.linalg.inv(normal))) / c_ref**2
     np.testing.assert_allclose(result.compliance, c_ref, rtol=1e-9)
     np.testing.assert_allclose(result.stiffness_std, std_ref, rtol=1e-7)
-    np.testing.assert_array_equal(result.displacement_cov, floor.covariance)
+    np.testing.assert_allclose(result.displacement_cov, cov, rtol=1e-15)
     # the floor's correlations change the estimate: not the per-component weights of fgls
     _, _, fgls = identify_dataset(root, "fgls")
     assert np.max(np.abs(fgls.compliance / c_ref - 1)) > 1e-4
@@ -96,7 +98,10 @@ def test_identify_estimates_the_floor_once_and_reports_the_one_it_weighted_with(
     assert len(calls) == 1  # the weights and the report share one estimate
     # reference: the floor refitted from the dataset's clouds alone (no reduced tests passed in)
     independent = real(root)
-    np.testing.assert_allclose(out["displacement_cov"], independent.covariance, rtol=1e-12, atol=1e-30)
+    # it weighted with the floor times its sampling inflation nu / (nu - 7) (nu = 24 samples)
+    np.testing.assert_allclose(
+        out["displacement_cov"], independent.covariance * 24 / 17, rtol=1e-12, atol=1e-30
+    )
     np.testing.assert_allclose(
         out["noise_floor"]["covariance"], independent.covariance, rtol=1e-12, atol=1e-30
     )
@@ -110,14 +115,14 @@ def test_too_few_repeat_samples_name_the_dataset_and_how_many_are_needed(dataset
     (root / "repeats.csv").write_bytes(b"".join(rows[:2]))  # the header and T001's first repeat
     message = (
         f"{root}: identification method 'gls_floor' weights with the repeat-scan noise floor's 6 x 6 "
-        "covariance, which needs at least 6 repeat-scan samples (one per repeat of a test); repeats.csv "
-        "gives 1 (from 1 test): record 5 more repeat scans, or use method 'fgls'"
+        "covariance, which needs at least 8 repeat-scan samples (one per repeat of a test); repeats.csv "
+        "gives 1 (from 1 test): record 7 more repeat scans, or use method 'fgls'"
     )
     with pytest.raises(DatasetError) as exc:
         identify_dataset(root, "gls_floor")
     assert str(exc.value) == message
     assert cli_main.main(["identify", str(root), "--method", "gls_floor", "--quiet"]) == 2
     assert capsys.readouterr().err == f"vtestbed: error: {message}\n"
-    (root / "repeats.csv").write_bytes(b"".join(rows[:7]))  # T001 and T002, 3 repeats each: 6 samples
+    (root / "repeats.csv").write_bytes(b"".join(rows[:10]))  # T001-T003, 3 repeats each: 9 samples
     _, _, result = identify_dataset(root, "gls_floor")
     assert result.method == "gls_floor" and np.all(result.stiffness > 0)

@@ -197,14 +197,23 @@ NO_FLOOR = (
 
 
 # gls_floor whitens with the floor's 6 x 6 covariance: estimated from fewer than 6 independent
-# displacement samples it has rank < 6 (singular), and its weights would be meaningless.
-MIN_FLOOR_SAMPLES = 6
+# displacement samples it has rank < 6 (singular), and its weights would be meaningless; its
+# sampling inflation nu / (nu - 7) needs nu > 7, as the model fit against the floor does.
+MIN_FLOOR_SAMPLES = 8
 
 
 def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
-    """The noise floor's covariance for ``gls_floor``, or a DatasetError naming ``source`` (the
-    dataset folder, if any), the samples it has and the samples it needs (no floor, or one from
-    too few repeat scans)."""
+    """The covariance ``gls_floor`` weights with and reports under, or a DatasetError naming
+    ``source`` (the dataset folder, if any), the samples it has and the samples it needs (no floor,
+    or one from too few repeat scans).
+
+    It is the floor's covariance times ``nu / (nu - 7)``, the mean inflation of the inverse of a
+    6 x 6 covariance estimated from ``nu`` repeat samples (:func:`.floor_calibration.inflation`, the
+    same as the model fit's :class:`.model_fit.Whitener`): the weights, so the estimate, do not
+    change; the reported std grows by its square root (1.11 at 12 tests with 3 repeats, 1.06 at 20),
+    which brings the z-score std into [0.8, 1.25] on every design of docs/uncertainty.md."""
+    from .floor_calibration import inflation
+
     where = f"{source}: " if source else ""
     if noise_floor is None:
         raise DatasetError(f"{where}{NO_FLOOR}")
@@ -216,7 +225,7 @@ def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
             f"test{'s' * (noise_floor.n_tests != 1)}): record {MIN_FLOOR_SAMPLES - noise_floor.n_samples} "
             "more repeat scans, or use method 'fgls'"
         )
-    return noise_floor.covariance
+    return noise_floor.covariance * inflation(noise_floor.n_samples)
 
 
 def identify_measurements(
