@@ -208,7 +208,8 @@ def run_panel(base, tag: str, tension: float, args, cache: Path, shared: dict) -
             cells[(design_name, n)] = {"err": err, "pred": pred, "bound": extra.get("bound"),
                                        "plan": plan, "extra": extra}  # fmt: skip
         if args.joints and design_name in ("minimax", "refined"):
-            print(joint_check(f"{name}_{tag}", scenario, data, a, args.method), flush=True)
+            full = cells[(design_name, len(a))]["err"]  # identified once, above
+            print(joint_check(f"{name}_{tag}", scenario, data, a, full), flush=True)
     return cells
 
 

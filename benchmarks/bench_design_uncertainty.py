@@ -177,14 +177,14 @@ def identify_trials(data: dict, n: int, method: str) -> tuple[np.ndarray, np.nda
     return np.array(ks), np.array(stds)
 
 
-def joint_check(name: str, scenario, data: dict, a: np.ndarray, method: str) -> str:
-    """Per joint [%], a set's Monte Carlo std against its predictions: the design's (``SIGMA_P`` /
+def joint_check(name: str, scenario, data: dict, a: np.ndarray, err: np.ndarray) -> str:
+    """Per joint [%], a set's Monte Carlo std (of ``err`` (trials, joints), the relative errors of
+    its identifications from all its tests) against its predictions: the design's (``SIGMA_P`` /
     ``SIGMA_R``) and the Cramer-Rao bound (the scan's full covariance, drift correlation included).
     Then the scan noise itself: the displacements' covariance over the trials (B's axes, as the
     researcher measures them), pooled over the tests and whitened by the bound's model, whose
     eigenvalues are 1 where the model is right."""
     n, k = len(a), data["k_true"]
-    err = identify_trials(data, n, method)[0] / k - 1
     rows = {"MC std": err.std(axis=0, ddof=1), "design": design.evaluate(a, k).relative_std,
             "CRLB": bound(scenario, n, k)}  # fmt: skip
     spacing = scenario.scanner.spacing or crlb.DEFAULT_SPACING_M
