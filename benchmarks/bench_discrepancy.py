@@ -13,7 +13,9 @@ Per world the physics is done once (:func:`vtestbed.campaigns.montecarlo.prepare
 test's own scans and readings, :func:`~vtestbed.world.repeats.repeat_rng` and
 ``draw_repeat_scans`` for 3 repeats of every test, validation tests included), reduced by the
 researcher's own code (``measure_arrays``; ``scan_frames`` -> ``noise_floor_from_frames``, the
-floor ``estimate_noise_floor`` gives from the files) and diagnosed as
+floor ``estimate_noise_floor`` gives from the files; ``against_scan_mean``: every displacement
+against its test's mean unloaded scan, as ``load_with_floor`` measures a dataset since
+2026-11-27) and diagnosed as
 :func:`vtestbed.researcher.discrepancy.diagnose` does by default: ``name_effects(ModelContext(...,
 ExactStatics(kin, setup)), Whitener(floor), candidates(kin), alpha=0.01)`` (stepwise: forward,
 and backward after each addition) and ``validation_gap``
@@ -89,6 +91,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
 from vtestbed.researcher.floor_calibration import lr_power  # noqa: E402
 from vtestbed.researcher.identify import stack  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
+from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
 warnings.filterwarnings("ignore", message=r".* is not physically possible")
@@ -219,7 +222,8 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     ms = measure_trial(prepared, seed, list(prepared.tests))  # test_rng + draw_readings per test
     t1 = time.perf_counter()
     frames = repeat_frames(prepared, seed, list(prepared.tests), ms, scenario.scanner.noise_model, REPEATS)
-    floor = noise_floor_from_frames(frames)
+    # as load_with_floor: every displacement against its test's mean unloaded scan, the floor for it
+    ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames))
     t2 = time.perf_counter()
     ident = [m for m in ms if m.group == "identification"]
     valid = [m for m in ms if m.group == "validation"]
@@ -281,13 +285,14 @@ def noise_free(prepared, tests=None):
 
 def reference_floor(repeats: int) -> NoiseFloor:
     """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED), with its
-    sample count (the whitener divides out the chi^2 inflation of an estimated floor)."""
+    sample count (the whitener divides out the chi^2 inflation of an estimated floor), for the
+    trials' displacements (against the mean of ``REPEATS + 1`` unloaded scans)."""
     prepared, _ = prepared_world(None, 1.0)  # the clean world: no effects in the repeats
     ms = measure_trial(prepared, REF_SEED, list(prepared.tests))
     noise = prepared.scenario.scanner.noise_model
     return noise_floor_from_frames(
         repeat_frames(prepared, REF_SEED, list(prepared.tests), ms, noise, repeats)
-    )
+    ).for_scan_mean(REPEATS + 1)  # the trials' displacements: against the mean of REPEATS + 1 scans
 
 
 def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:

@@ -46,7 +46,7 @@ def _small_scenario(tmp_path: Path, repeats: int = 3) -> Path:
     data.pop("validation")
     data["scanner"]["repeats"] = repeats
     data["world"] = {
-        "effects": [{"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -8.0e4}]
+        "effects": [{"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -7.0e4}]
     }
     path = tmp_path / "small.toml"
     path.write_text(toml_text(data))  # the writer under test writes the input too
@@ -78,7 +78,7 @@ def test_written_scenario_round_trips(tmp_path):
     assert again.seed == original.seed and again.scanner.distance == original.scanner.distance
     assert again.force_sensor == original.force_sensor and again.scanner.repeats == 3
     assert [e.to_dict() for e in again.effects] == [
-        {"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -8.0e4}
+        {"name": "joint_coupling", "joints": [2, 3], "stiffness_Nm_per_rad": -7.0e4}
     ]
 
 

@@ -49,13 +49,11 @@ from .researcher.diagnose import (
     Whitener,
     fit_model,
     identifiable,
-    require_floor,
     require_rank,
 )
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
-from .researcher.measure import load_measurements
-from .researcher.noise_floor import estimate_noise_floor
+from .researcher.scan_mean import load_with_floor
 from .researcher.statics import ExactStatics
 from .scenario import Scenario, load_scenario
 from .scenario_writer import proposal_text, scenario_text
@@ -153,8 +151,7 @@ def _researcher_view(root: Path):
     """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms."""
     from .robots import load_robot
 
-    setup, ms = load_measurements(root)
-    floor = require_floor(estimate_noise_floor(root, ms), root)
+    setup, ms, floor = load_with_floor(root)  # as diagnose measures: against the mean unloaded scan
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
     ctx = ModelContext([m for m in ms if m.group == "identification"], setup, kin, ExactStatics(kin, setup))

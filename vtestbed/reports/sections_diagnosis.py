@@ -19,7 +19,9 @@ def noise_floor(folder: ResultFolder) -> Section:
             for c, s, n in zip(COMPONENTS, nf["component_std"], r["detect"]["normalised_residual_rms"])]  # fmt: skip
     facts = KeyValues([("dataset", r["dataset"]), ("statics of the baseline", r["statics"]),
                        ("alpha (family-wise)", Num(r["alpha"], "g")),
-                       ("repeat-scan samples", str(nf["n_samples"]))], id="diagnosis-facts")  # fmt: skip
+                       ("repeat-scan samples", str(nf["n_samples"])),
+                       ("unloaded scans averaged per displacement", str(nf.get("reference_scans", 1)))],
+                      id="diagnosis-facts")  # fmt: skip
     table = Table(["component", "noise floor std [um | urad]", "baseline residual RMS / floor"], rows,
                   id="noise-floor")  # fmt: skip
     return Section("noise-floor", "Noise floor", [facts, table])

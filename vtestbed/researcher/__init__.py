@@ -9,7 +9,8 @@ The chain: :func:`fit_block_frame` (three planes of the block in a cloud) ->
 :func:`measure_test` (displacement, wrench and Jacobian of one test, block frame) ->
 :func:`identify` (``delta_d = A c`` by least squares, with an honest covariance) ->
 :func:`convergence` / :func:`validation` (the paper's Figures 10 and 11). The discrepancy
-workflow: :func:`estimate_noise_floor` (repeat scans) and :func:`diagnose` (detect, name, add
+workflow: :func:`estimate_noise_floor` (repeat scans), :func:`load_with_floor` (every displacement
+against its test's mean unloaded scan, with the floor for it) and :func:`diagnose` (detect, name, add
 the effects the paper's model misses; candidate terms in :mod:`.candidates`, the clean world's
 exact statics in :mod:`.statics`). Units: SI.
 """
@@ -30,6 +31,7 @@ from .measure import (
 )
 from .noise_floor import NoiseFloor, estimate_noise_floor
 from .report import convergence, plot_convergence, plot_validation, validation
+from .scan_mean import against_scan_mean, load_with_floor
 from .statics import ExactStatics
 
 __all__ = [
@@ -42,6 +44,7 @@ __all__ = [
     "IdentificationResult",
     "TestMeasurement",
     "a_matrix",
+    "against_scan_mean",
     "build_pinocchio_model",
     "candidates",
     "convergence",
@@ -52,6 +55,7 @@ __all__ = [
     "identify_measurements",
     "identify_prefixes",
     "load_measurements",
+    "load_with_floor",
     "measure_arrays",
     "measure_test",
     "plot_convergence",

@@ -30,16 +30,14 @@ from .diagnose import (
     fit_model,
     name_effects,
     rank_label,
-    require_floor,
     require_rank,
     require_tests,
     round_stand_ins,
     validation_gap,
 )
 from .kinematics import ArmKinematics
-from .measure import load_measurements
 from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
-from .noise_floor import estimate_noise_floor
+from .scan_mean import load_with_floor
 
 
 def diagnose(
@@ -70,8 +68,7 @@ def diagnose(
     if names:  # none (``names=()``, ``--candidates none``): the detection alone
         require_names(names, "--candidates")
     require_outside(statics, names, "--candidates")
-    setup, measurements = load_measurements(root)
-    floor = require_floor(estimate_noise_floor(root, measurements), root)
+    setup, measurements, floor = load_with_floor(root)  # displacements against the mean unloaded scan
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
@@ -99,7 +96,8 @@ def diagnose(
         "rank_by": rank_by,
         "statics": statics,
         "candidates": list(names),
-        "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples)},
+        "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples),
+                        "reference_scans": floor.reference_scans},
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
@@ -242,12 +240,20 @@ def _per_test(white: Whitener, residuals: np.ndarray) -> list:
     return np.sqrt(np.sum(white(residuals.reshape(-1)).reshape(-1, 6) ** 2, axis=1) / 6).tolist()
 
 
+def _reference_text(scans: int) -> str:
+    """How the displacements were measured (:mod:`.scan_mean`)."""
+    if scans == 1:
+        return "displacements from one unloaded scan, as the paper measures them"
+    return f"displacements against the mean of {scans} unloaded scans per test"
+
+
 def markdown(report: dict, joint_names) -> str:
     det, val = report["detect"], report["validation"]
     lines = [
         f"# Discrepancy report: {report['dataset']}",
         "",
-        f"Noise floor (repeat scans, {report['noise_floor']['n_samples']} samples): "
+        f"Noise floor (repeat scans, {report['noise_floor']['n_samples']} samples; "
+        f"{_reference_text(report['noise_floor'].get('reference_scans', 1))}): "
         + ", ".join(f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, report["noise_floor"]["component_std"]))
         + " (um, urad)",
         "",

@@ -20,10 +20,9 @@ from .candidates import (
     ModelContext,
     candidates,
 )
-from .diagnose import Whitener, fit_model, identifiable, require_floor, require_tests, validation_gap
+from .diagnose import Whitener, fit_model, identifiable, require_tests, validation_gap
 from .kinematics import ArmKinematics
-from .measure import load_measurements
-from .noise_floor import estimate_noise_floor
+from .scan_mean import load_with_floor
 from .statics import ExactStatics
 
 STATICS = ("exact", "paper")
@@ -105,8 +104,7 @@ def read_model(path, robot, kin) -> tuple[list, str]:
 
 def identify_with_model(root, model_path) -> dict:
     """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans)."""
-    setup, measurements = load_measurements(root)
-    floor = require_floor(estimate_noise_floor(root, measurements), root)
+    setup, measurements, floor = load_with_floor(root)  # as diagnose measures
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     terms, statics = read_model(model_path, setup.robot, kin)
     exact = baseline_statics(statics, kin, setup)

@@ -43,6 +43,7 @@ when the robot moves between scans (a real lab's backlash, re-settling).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,6 +63,7 @@ __all__ = [
     "NoiseFloor",
     "estimate_noise_floor",
     "noise_floor_from_frames",
+    "repeat_scan_frames",
     "scan_deviations",
     "scan_frames",
 ]
@@ -83,12 +85,34 @@ class NoiseFloor:
         Tests with at least one repeat.
     test_ids : tuple of str
         Those tests.
+    reference_scans : int
+        The unloaded scans each displacement is measured against: 1 (the estimate, a single-scan
+        displacement's floor) or ``m`` after :meth:`for_scan_mean`, whose covariance is the
+        floor of a displacement against the mean of ``m`` unloaded scans.
     """
 
     covariance: np.ndarray
     n_samples: int
     n_tests: int
     test_ids: tuple[str, ...] = ()
+    reference_scans: int = 1  # unloaded scans averaged into each displacement (:meth:`for_scan_mean`)
+
+    def for_scan_mean(self, scans: int) -> NoiseFloor:
+        """The floor of a displacement measured against the mean of ``scans`` unloaded scans.
+
+        A displacement is the loaded scan's frame minus the unloaded one's: with per-scan
+        covariance ``S`` it has ``2 S``, the floor estimated from pairs of repeats. Against the
+        mean of ``m`` unloaded scans it has ``S (1 + 1 / m)``, so the floor scales by
+        ``(1 + 1 / m) / 2`` (0.625 with a test's scan and 3 repeats: 1.6 times the information per
+        test). The sample count stays: the scale is known, not estimated.
+        (:mod:`.scan_mean` builds such displacements.)
+        """
+        if self.reference_scans != 1:
+            raise OutOfRangeError(f"this floor is already for a mean of {self.reference_scans} scans")
+        if int(scans) != scans or scans < 1:
+            raise OutOfRangeError(f"scans = {scans!r} must be an integer >= 1 (1: the test's own scan)")
+        scale = (1.0 + 1.0 / scans) / 2.0
+        return dataclasses.replace(self, covariance=self.covariance * scale, reference_scans=int(scans))
 
     @property
     def component_std(self) -> np.ndarray:
@@ -165,6 +189,7 @@ class NoiseFloor:
             "n_samples": self.n_samples,
             "n_tests": self.n_tests,
             "test_ids": list(self.test_ids),
+            "reference_scans": self.reference_scans,
         }
 
     def summary(self) -> str:
@@ -254,6 +279,21 @@ def estimate_noise_floor(
 ) -> NoiseFloor | None:
     """The noise floor of a dataset from its repeat scans, or None when it has no ``repeats.csv``.
 
+    ``noise_floor_from_frames(repeat_scan_frames(...))``; the arguments and errors are
+    :func:`repeat_scan_frames`'.
+    """
+    frames = repeat_scan_frames(root, measurements, progress)
+    return None if frames is None else noise_floor_from_frames(frames)
+
+
+def repeat_scan_frames(
+    root: str | Path,
+    measurements: Sequence[TestMeasurement] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, list[np.ndarray]] | None:
+    """Per test with repeats, the fitted frames (4, 4) of its unloaded scan and of each repeat
+    (scanner frame), or None when the dataset has no ``repeats.csv``.
+
     Parameters
     ----------
     root : str or Path
@@ -297,4 +337,4 @@ def estimate_noise_floor(
         frames[tid] = scan_frames(record, cloud0, clouds, setup, kin, known.get(tid), named)
         if progress:
             progress(done, len(by_test))
-    return noise_floor_from_frames(frames)
+    return frames
