@@ -37,16 +37,15 @@ from ..dataset import DatasetSetup
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import require_floor
 from .measure import TestMeasurement, load_measurements
-from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames
+from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
 
 __all__ = ["against_scan_mean", "common_scan_count", "load_with_floor", "mean_frame"]
 
 
 def mean_frame(frames: Sequence[np.ndarray]) -> np.ndarray:
     """(4, 4) mean of nearby frames: the first moved by the mean of the others' deviations from it."""
-    first = np.asarray(frames[0], dtype=float)
-    e = np.mean([displacement_in_block_frame(first, f) for f in frames], axis=0)
-    return first @ homogeneous(matrix_from_rotation_vector(e[3:]), e[:3])
+    e = scan_deviations(frames).mean(axis=0)  # each frame's deviation from the first, averaged
+    return np.asarray(frames[0], dtype=float) @ homogeneous(matrix_from_rotation_vector(e[3:]), e[:3])
 
 
 def common_scan_count(
