@@ -91,13 +91,13 @@ def test_identify_estimates_the_floor_once_and_reports_the_one_it_weighted_with(
 
     _, root = dataset
     calls = []
-    real = noise_floor.estimate_noise_floor
-    monkeypatch.setattr(noise_floor, "estimate_noise_floor", lambda *a, **k: calls.append(1) or real(*a, **k))
+    frames = noise_floor.repeat_scan_frames
+    monkeypatch.setattr(noise_floor, "repeat_scan_frames", lambda *a, **k: calls.append(1) or frames(*a, **k))
     assert cli_main.main(["identify", str(root), "--method", "gls_floor", "--json", "--quiet"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert len(calls) == 1  # the weights and the report share one estimate
+    assert len(calls) == 1  # the repeat scans are fitted once: the weights and the report share them
     # reference: the floor refitted from the dataset's clouds alone (no reduced tests passed in)
-    independent = real(root)
+    independent = noise_floor.estimate_noise_floor(root)
     # it weighted with the floor times its sampling inflation nu / (nu - 7) (nu = 24 samples)
     np.testing.assert_allclose(
         out["displacement_cov"], independent.covariance * 24 / 17, rtol=1e-12, atol=1e-30

@@ -34,7 +34,7 @@ from .dataset import (
     repeat_cloud_path,
     write_setup,
 )
-from .errors import DatasetError, ScanError, SensorOverloadError
+from .errors import DatasetError, ScanError, SensorOverloadError, UnknownNameError
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
 from .lab import MIN_TENSION_N, LabSetup
@@ -264,14 +264,18 @@ def identify_dataset(
     progress: bool = False,
     timings: Timings | None = None,
     strict: bool = False,
+    reference: str = "scan",
 ):
     """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult).
 
     ``strict``: implausible tests (a block that did not move, moved against or far beyond its
-    load, a force that misses the block) raise instead of warning.
+    load, a force that misses the block) raise instead of warning. ``reference``: what each
+    displacement is measured against, the test's own unloaded scan (``"scan"``, the paper's) or
+    the mean of its unloaded scans (``"mean"``, needs repeat scans;
+    :mod:`vtestbed.researcher.scan_mean`).
     """
     setup, measurements, result, _ = identify_dataset_with_floor(
-        root, method, progress, timings, strict, floor=method == "gls_floor"
+        root, method, progress, timings, strict, floor=method == "gls_floor", reference=reference
     )
     return setup, measurements, result
 
@@ -283,12 +287,19 @@ def identify_dataset_with_floor(
     timings: Timings | None = None,
     strict: bool = False,
     floor: bool = True,
+    reference: str = "scan",
 ):
     """:func:`identify_dataset` plus the dataset's repeat-scan noise floor, estimated once.
 
     Returns (setup, measurements, IdentificationResult, NoiseFloor or None); the floor is None
-    without repeat scans or with ``floor=False`` (unless ``method`` weights with it: "gls_floor").
+    without repeat scans or with ``floor=False`` (unless ``method`` weights with it, "gls_floor",
+    or ``reference="mean"`` scales it). With ``reference="mean"`` the measurements and the floor
+    are those of displacements against each test's mean unloaded frame.
     """
+    from .researcher.scan_mean import REFERENCES, against_reference
+
+    if reference not in REFERENCES:  # before any cloud is read
+        raise UnknownNameError("displacement reference", reference, REFERENCES)
     timings = timings or Timings()
     bar = None
 
@@ -310,10 +321,12 @@ def identify_dataset_with_floor(
             bar.close()  # ends the bar's line before an error is printed
     t1 = time.perf_counter()
     noise_floor = None
-    if floor or method == "gls_floor":  # gls_floor's weights (None without repeats: it says so)
-        from .researcher.noise_floor import estimate_noise_floor
+    if floor or method == "gls_floor" or reference != "scan":  # None without repeats: gls_floor says so
+        from .researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
 
-        noise_floor = estimate_noise_floor(root, measurements)
+        frames = repeat_scan_frames(root, measurements)
+        noise_floor = None if frames is None else noise_floor_from_frames(frames)
+        measurements, noise_floor = against_reference(reference, measurements, frames, noise_floor, root)
     result = identify_measurements(
         measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
         source=str(root),
@@ -337,7 +350,7 @@ def run(
     require_own_kind(out, (RUN,), "vtestbed run", DatasetError)  # its report.html is not a sweep's
     simulate(scenario, out / "dataset", progress=progress, timings=timings, replace_stale=replace_stale)
     setup, measurements, result = identify_dataset(
-        out / "dataset", scenario.method, progress, timings, strict=strict
+        out / "dataset", scenario.method, progress, timings, strict=strict, reference=scenario.reference
     )
     t0 = time.perf_counter()
     truth = comparison.read_truth(out / "dataset", dof=len(result.joint_names))
@@ -359,6 +372,7 @@ def run(
         "seed": scenario.seed,
         "n_tests": result.n_tests,
         "method": result.method,
+        "reference": scenario.reference,
         "joints": joints,
         "table5": {"first_n": comparison.PAPER_FIRST_N, **ranges},
         "identification": result.as_dict(),

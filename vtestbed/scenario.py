@@ -32,6 +32,10 @@ CONVENTIONS = ("dh", "controller")
 # "wls" needs a stated displacement covariance, which a scenario has not; "fgls_pooled": docs/uncertainty.md
 METHODS = ("ols", "fgls", "fgls_pooled", "gls_floor")  # "gls_floor" needs [scanner] repeats >= 2
 DEFAULT_METHOD = "fgls"
+# what each displacement is measured against (vtestbed.researcher.scan_mean.REFERENCES, written out
+# so that a scenario does not load the researcher side; a test keeps them equal): "mean" needs repeats
+REFERENCES = ("scan", "mean")
+DEFAULT_REFERENCE = "scan"  # the paper's: the test's own unloaded scan
 DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
 POINT_SPACING_RANGE_M = (2e-5, 5e-3)
 FT_NOISE_STD_MAX, FT_BIAS_MAX = 50.0, 100.0  # N (N*m)
@@ -110,6 +114,7 @@ class Scenario:
     validation_load: LoadPlan
     lab: LabSetup = field(default_factory=LabSetup)
     effects: tuple = ()  # hidden world effects (vtestbed.world.effects): truth, never in the dataset
+    reference: str = DEFAULT_REFERENCE  # identification.reference: the unloaded scan(s) of a displacement
     source: Path | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
@@ -295,8 +300,9 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     force = _force_sensor_plan(data.get("force_sensor", {}), f)
     world = f.table(data.get("world", {}), "world", ("effects",))
     effects = parse_effects(world.get("effects", []), f)
-    ident = f.table(data.get("identification", {}), "identification", ("method",))
+    ident = f.table(data.get("identification", {}), "identification", ("method", "reference"))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
+    reference = f.choice(ident.get("reference", DEFAULT_REFERENCE), "identification.reference", REFERENCES)
     val = f.table(
         data.get("validation", {}), "validation", ("convention", "angles_deg", "hook", "anchor", "tension_N")
     )
@@ -310,6 +316,12 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         val_poses, val_load = np.zeros((0, robot.dof)), LoadPlan((), (), ())
     if method == "gls_floor":
         _check_floor_samples(scanner.repeats, len(poses) + len(val_poses), f)
+    if reference == "mean" and scanner.repeats < 1:
+        raise f.error(
+            "identification.reference",
+            "'mean' measures each displacement against the mean of the test's unloaded scans and needs "
+            f"[scanner] repeats >= 1 (got {scanner.repeats}); 'scan' (the paper's) needs none",
+        )
     return Scenario(
         name=name,
         description=str(data.get("description", "")),
@@ -324,6 +336,7 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         validation_load=val_load,
         lab=lab,
         effects=effects,
+        reference=reference,
         source=Path(source) if source else None,
         raw=data,
     )
@@ -368,6 +381,7 @@ def scenario_summary(s: Scenario) -> dict:
         "seed": s.seed,
         "n_tests": s.n_tests,
         "method": s.method,
+        "reference": s.reference,
         "scanner": {k: v for k, v in asdict(s.scanner).items() if k != "noise_model"},
         "force_sensor": asdict(s.force_sensor),
         "fingerprint": s.fingerprint,

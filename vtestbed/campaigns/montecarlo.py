@@ -26,6 +26,7 @@ from ..experiment import dataset_setup, test_error, test_id
 from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
+from ..researcher.noise_floor import noise_floor_from_frames
 from ..scenario import Scenario, pose_field
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
@@ -320,16 +321,30 @@ def trial(
     method: str | None = None,
     noise: ScanNoise | None | str = "scenario",
     sensor: ForceTorqueSensor | None = None,
+    reference: str | None = None,
 ) -> IdentificationResult:
     """One virtual experiment with the first ``n_tests`` identification tests.
 
     ``method="gls_floor"`` also draws the scenario's repeat scans of those tests (as ``simulate``
     writes them: :func:`~vtestbed.world.repeats.repeat_rng`) for the noise floor it weights with.
+    ``reference="mean"`` measures each displacement against the mean of the test's unloaded scan
+    and its repeats (:func:`~vtestbed.researcher.scan_mean.against_reference`), as
+    ``vtestbed identify --reference mean`` does on the dataset; None: the scenario's
+    ``identification.reference``.
     """
+    from ..researcher.scan_mean import against_reference
+
     tests = prepared.identification_tests()[:n_tests]
     measurements = measure_trial(prepared, seed, tests, noise, sensor)
     method = method or prepared.scenario.method
-    floor = _noise_floor(prepared, seed, tests, measurements, noise) if method == "gls_floor" else None
+    reference = reference or prepared.scenario.reference
+    floor = None
+    if method == "gls_floor" or reference != "scan":
+        frames = _trial_frames(prepared, seed, tests, measurements, noise)
+        floor = None if frames is None else noise_floor_from_frames(frames)
+        measurements, floor = against_reference(
+            reference, measurements, frames, floor, f"scenario {prepared.scenario.name!r}"
+        )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(
@@ -337,17 +352,14 @@ def trial(
         )
 
 
-def _noise_floor(prepared: PreparedScenario, seed: int, tests, measurements, noise):
-    """The repeat-scan noise floor of one trial's tests (``scanner.repeats`` scans each)."""
-    from ..researcher.noise_floor import noise_floor_from_frames
-
+def _trial_frames(prepared: PreparedScenario, seed: int, tests, measurements, noise):
+    """:func:`repeat_frames` of one trial's tests (``scanner.repeats`` repeats each), or None
+    without repeats or scanner noise (the researcher's code then says what is missing)."""
     sc = prepared.scenario
     noise = _scan_noise(prepared, noise)
-    if noise is None or sc.scanner.repeats < 2:
-        return None  # identify_measurements says what is missing
-    return noise_floor_from_frames(
-        repeat_frames(prepared, seed, tests, measurements, noise, sc.scanner.repeats)
-    )
+    if noise is None or sc.scanner.repeats < 1:
+        return None
+    return repeat_frames(prepared, seed, tests, measurements, noise, sc.scanner.repeats)
 
 
 def repeat_frames(

@@ -8,6 +8,7 @@ from ..files import dumps
 from .args import output_dir, print_notes
 
 IDENTIFY_METHODS = ("ols", "fgls", "fgls_pooled", "gls_floor")
+REFERENCES = ("scan", "mean")  # researcher.scan_mean.REFERENCES (a test keeps them equal)
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -15,6 +16,7 @@ SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 def _print_run(summary: dict, out: Path) -> None:
     print(
         f"\n{summary['scenario']}: {summary['n_tests']} tests, method {summary['method']}, seed {summary['seed']}"
+        + (", displacements against the mean unloaded scan" if summary.get("reference") == "mean" else "")
     )
     print(summary["table"])
     print_notes(summary["identification"]["warnings"])
@@ -60,14 +62,22 @@ def _identify_with_model(args) -> int:
 
 def _cmd_identify(args) -> int:
     if args.model is not None:
+        if args.reference == "scan":
+            from ..errors import VtestbedError
+
+            raise VtestbedError(
+                "identify --model measures every displacement against the mean of its test's unloaded "
+                "scans, as diagnose does: --reference scan cannot be combined with --model"
+            )
         return _identify_with_model(args)
     from ..comparison import compare, read_truth
     from ..experiment import identify_dataset_with_floor
 
+    reference = args.reference or "scan"
     setup, measurements, result, floor = identify_dataset_with_floor(  # floor: None without repeats
-        args.dataset, args.method, progress=not args.quiet, strict=args.strict
+        args.dataset, args.method, progress=not args.quiet, strict=args.strict, reference=reference
     )
-    out = {"dataset": str(args.dataset), **result.as_dict()}
+    out = {"dataset": str(args.dataset), "reference": reference, **result.as_dict()}
     if floor is not None:
         out["noise_floor"] = floor.as_dict()
     truth = None if args.no_truth else read_truth(args.dataset, dof=len(result.joint_names))  # names the file
@@ -137,7 +147,17 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true")
     p.add_argument("--no-truth", action="store_true", help="do not compare with truth.json even if present")
     p.add_argument(
-        "--model", type=Path, help="model.json from 'vtestbed diagnose': add its terms (needs repeat scans)"
+        "--reference",
+        choices=REFERENCES,
+        help="what each displacement is measured against: 'scan', the test's own unloaded scan (the "
+        "paper's; the default), or 'mean', the mean of the test's unloaded scans (its own and its repeats: "
+        "1.6x the information per test with 3 repeats; needs repeat scans of every test)",
+    )
+    p.add_argument(
+        "--model",
+        type=Path,
+        help="model.json from 'vtestbed diagnose': add its terms (needs repeat scans; measured against "
+        "the mean unloaded scan, as diagnose does)",
     )
     p.add_argument(
         "--strict",

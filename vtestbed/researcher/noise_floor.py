@@ -199,6 +199,12 @@ class NoiseFloor:
             f"noise floor from repeat scans: std x y z {std[0]:.2f} {std[1]:.2f} {std[2]:.2f} um, "
             f"rx ry rz {std[3]:.2f} {std[4]:.2f} {std[5]:.2f} urad ({self.n_samples} samples from "
             f"{self.n_tests} tests, each std +-{self.relative_std_uncertainty * 100:.0f} %)"
+            + (
+                f"; displacements against the mean of {self.reference_scans} unloaded scans: "
+                f"covariance x {(1 + 1 / self.reference_scans) / 2:.3g}"
+                if self.reference_scans > 1
+                else ""
+            )
         )
 
 

@@ -34,12 +34,24 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup
+from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import require_floor
 from .measure import TestMeasurement, load_measurements
 from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
 
-__all__ = ["against_scan_mean", "common_scan_count", "load_with_floor", "mean_frame"]
+__all__ = [
+    "REFERENCES",
+    "against_reference",
+    "against_scan_mean",
+    "common_scan_count",
+    "load_with_floor",
+    "mean_frame",
+]
+
+# What each displacement is measured against: "scan", the test's own unloaded scan (the paper's
+# method, and `vtestbed identify`'s default), or "mean", the mean of the test's unloaded scans.
+REFERENCES = ("scan", "mean")
 
 
 def mean_frame(frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -106,3 +118,41 @@ def load_with_floor(root: str | Path) -> tuple[DatasetSetup, list[TestMeasuremen
     floor = require_floor(None if frames is None else noise_floor_from_frames(frames), root)
     measurements, floor = against_scan_mean(measurements, frames, floor)
     return setup, measurements, floor
+
+
+def against_reference(
+    reference: str,
+    measurements: Sequence[TestMeasurement],
+    frames_by_test: Mapping[str, Sequence[np.ndarray]] | None,
+    floor: NoiseFloor | None,
+    source: str | Path = "the dataset",
+) -> tuple[list[TestMeasurement], NoiseFloor | None]:
+    """The measurements and floor for ``reference`` (one of :data:`REFERENCES`).
+
+    ``"scan"`` returns them unchanged. ``"mean"`` is :func:`against_scan_mean`, asked for
+    explicitly: a dataset without repeat scans (``frames_by_test`` None), or with a test that has
+    none, raises a DatasetError naming ``source`` and those tests, instead of falling back to
+    the single scan as the discrepancy workflow does.
+    """
+    if reference not in REFERENCES:
+        raise UnknownNameError("displacement reference", reference, REFERENCES)
+    if reference == "scan":
+        return list(measurements), floor
+    asked = (
+        f"{source}: reference 'mean' measures each displacement against the mean of its test's "
+        "unloaded scans (the test's own and its repeats)"
+    )
+    if frames_by_test is None or floor is None:
+        raise DatasetError(
+            f"{asked}, and the dataset has no repeat scans (repeats.csv): record 1 or more further scans "
+            "of the unloaded block per test (a simulated scenario: [scanner] repeats = 3), or use "
+            "reference 'scan' (the paper's)"
+        )
+    lacking = [m.test_id for m in measurements if len(frames_by_test.get(m.test_id, ())) < 2]
+    if lacking:
+        raise DatasetError(
+            f"{asked}, and test{'s' * (len(lacking) > 1)} {', '.join(lacking[:10])}"
+            f"{' ...' if len(lacking) > 10 else ''} ha{'ve' if len(lacking) > 1 else 's'} no repeat "
+            "scan in repeats.csv: record at least one for every test, or use reference 'scan' (the paper's)"
+        )
+    return against_scan_mean(measurements, frames_by_test, floor)
