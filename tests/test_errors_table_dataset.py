@@ -117,6 +117,18 @@ def _gls_floor_on_few_repeats(ctx):
     return cli(ctx, ["identify", root, "--method", "gls_floor", "--quiet", "--no-truth"])
 
 
+def _reference_mean_without_repeats(ctx):
+    """``vtestbed identify --reference mean`` on a simulated dataset without repeats.csv."""
+    from conftest import paper_scenario_data
+
+    from vtestbed.experiment import simulate
+    from vtestbed.scenario import parse_scenario
+
+    root = ctx.tmp / "ds"
+    simulate(parse_scenario(paper_scenario_data(2, 1, "plain", 3)), root, progress=False)
+    return cli(ctx, ["identify", root, "--reference", "mean", "--quiet", "--no-truth"])
+
+
 def _sweep_folder(ctx, part: bytes | None = None, manifest: str | None = None):
     """A results folder holding a campaign.json and one trials part (no sweep run)."""
     out = ctx.tmp / "sweep"
@@ -216,6 +228,7 @@ CASES = {
     "repeats-own-scan": _repeats("test_id,repeat,cloud\nT000,1,clouds/T0_u.ply\n"),
     "repeats-cloud-twice": _repeats("test_id,repeat,cloud\nT000,1,clouds/r.ply\nT001,1,clouds/r.ply\n"),
     "gls-floor-few-repeats": _gls_floor_on_few_repeats,
+    "identify-reference-no-repeats": _reference_mean_without_repeats,
     "truth-not-json": _truth('{"stiffness_true_Nm_per_rad": [1, 2'),
     "truth-number": _truth("3.5"),
     "truth-stiffness-nan": _truth('{"stiffness_true_Nm_per_rad": [1e9, NaN]}'),

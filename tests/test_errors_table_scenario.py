@@ -169,6 +169,7 @@ CASES = {
     "scen-repeats": load(setter("scanner.repeats", 2.5)),
     "scen-ft-noise": load(setter("force_sensor.noise_std", [1, 1, 1, 1, 1, -1])),
     "scen-method": load(setter("identification.method", "wls")),
+    "scen-reference-no-repeats": simulate(setter("identification.reference", "mean")),
     "scen-gls-few-repeats": simulate(
         lambda d: (setter("identification.method", "gls_floor")(d), setter("scanner.repeats", 2)(d))
     ),
