@@ -1,6 +1,7 @@
 """The discrepancy workflow's confusion matrix: which hidden effect does it name, and how often?
 
 Run: .venv/bin/python benchmarks/bench_discrepancy.py [--seeds 50] [--workers 2] [--effects a,b] [--quick]
+       [--loaded-repeats 3]
 
 Worlds: ``scenarios/kr60_paper.toml`` (20 identification tests at 200 N, the 5 Table 6
 validation tests) clean, and with each effect of ``vtestbed.world.effects.EFFECTS`` hidden alone
@@ -15,7 +16,8 @@ test's own scans and readings, :func:`~vtestbed.world.repeats.repeat_rng` and
 researcher's own code (``measure_arrays``; ``scan_frames`` -> ``noise_floor_from_frames``, the
 floor ``estimate_noise_floor`` gives from the files; ``against_scan_mean``: every displacement
 against its test's mean unloaded scan, as ``load_with_floor`` measures a dataset since
-2026-11-27) and diagnosed as
+2026-11-27; with ``--loaded-repeats R`` also R repeats of the loaded block,
+``[scanner] loaded_repeats``, averaged at the other end) and diagnosed as
 :func:`vtestbed.researcher.discrepancy.diagnose` does by default: ``name_effects(ModelContext(...,
 ExactStatics(kin, setup)), Whitener(floor), candidates(kin), alpha=0.01)`` (stepwise: forward,
 and backward after each addition) and ``validation_gap``
@@ -107,6 +109,9 @@ SCENARIO = Path(os.environ.get("VTESTBED_BENCH_SCENARIO", ROOT / "scenarios" / "
 ALPHA = 0.01
 RANK = os.environ.get("VTESTBED_BENCH_RANK", DEFAULT_RANK)  # --rank, for the spawned workers too
 REPEATS = 3  # repeat scans per test, as scenarios/kr60_hidden_link.toml
+# --loaded-repeats: scans of the loaded block per test beyond its own (0: the paper's one scan;
+# an environment variable so that the spawned workers see it too)
+LOADED_REPEATS = int(os.environ.get("VTESTBED_BENCH_LOADED_REPEATS", "0"))
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
 REF_SEED, REF_REPEATS = 977, 10  # the reference floor (only for choosing f_lim)
 LIMIT_POWER = 0.5  # "near the detection limit" by default: theoretical power of the naming test
@@ -221,9 +226,16 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     t0 = time.perf_counter()
     ms = measure_trial(prepared, seed, list(prepared.tests))  # test_rng + draw_readings per test
     t1 = time.perf_counter()
-    frames = repeat_frames(prepared, seed, list(prepared.tests), ms, scenario.scanner.noise_model, REPEATS)
-    # as load_with_floor: every displacement against its test's mean unloaded scan, the floor for it
-    ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames))
+    noise = scenario.scanner.noise_model
+    frames = repeat_frames(prepared, seed, list(prepared.tests), ms, noise, REPEATS)
+    loaded = (
+        repeat_frames(prepared, seed, list(prepared.tests), ms, noise, LOADED_REPEATS, "loaded")
+        if LOADED_REPEATS
+        else None
+    )
+    # as load_with_floor: every displacement against its test's mean unloaded scan (to its mean
+    # loaded scan with --loaded-repeats), the floor for it
+    ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded)
     t2 = time.perf_counter()
     ident = [m for m in ms if m.group == "identification"]
     valid = [m for m in ms if m.group == "validation"]
@@ -286,13 +298,14 @@ def noise_free(prepared, tests=None):
 def reference_floor(repeats: int) -> NoiseFloor:
     """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED), with its
     sample count (the whitener divides out the chi^2 inflation of an estimated floor), for the
-    trials' displacements (against the mean of ``REPEATS + 1`` unloaded scans)."""
+    trials' displacements (against the mean of ``REPEATS + 1`` unloaded scans, to the mean of
+    ``LOADED_REPEATS + 1`` loaded ones)."""
     prepared, _ = prepared_world(None, 1.0)  # the clean world: no effects in the repeats
     ms = measure_trial(prepared, REF_SEED, list(prepared.tests))
     noise = prepared.scenario.scanner.noise_model
     return noise_floor_from_frames(
         repeat_frames(prepared, REF_SEED, list(prepared.tests), ms, noise, repeats)
-    ).for_scan_mean(REPEATS + 1)  # the trials' displacements: against the mean of REPEATS + 1 scans
+    ).for_scan_mean(REPEATS + 1, LOADED_REPEATS + 1)  # the trials' displacements, both ends
 
 
 def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
@@ -658,7 +671,7 @@ def clopper_pearson(k: int, n: int) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------- main
 def main() -> None:
-    global SCENARIO, RANK
+    global SCENARIO, RANK, LOADED_REPEATS
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=50, help="trials per world")
     parser.add_argument("--workers", type=int, default=2)
@@ -679,11 +692,16 @@ def main() -> None:
     parser.add_argument(
         "--scenario", type=Path, default=SCENARIO, help="the experiment (default: the paper's)"
     )
+    parser.add_argument("--loaded-repeats", type=int, default=LOADED_REPEATS,
+                        help="further scans of the loaded block per test, averaged into each displacement "
+                             "(default 0: the paper's one loaded scan; [scanner] loaded_repeats)")  # fmt: skip
     parser.add_argument("--rank", choices=RANK_CRITERIA, default=RANK,
                         help="how diagnose ranks the significant candidates (default %(default)s)")  # fmt: skip
     args = parser.parse_args()
     RANK = args.rank
     os.environ["VTESTBED_BENCH_RANK"] = RANK
+    LOADED_REPEATS = args.loaded_repeats
+    os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(LOADED_REPEATS)
     SCENARIO = args.scenario.resolve()
     os.environ["VTESTBED_BENCH_SCENARIO"] = str(SCENARIO)
     names = [n.strip() for n in args.effects.split(",") if n.strip()]
@@ -748,7 +766,7 @@ def main() -> None:
         rs.sort(key=lambda r: r["seed"])
     cal = {n: cal[n] for n in sorted(cal, key=order.get)}
     print(f"# bench_discrepancy: {SCENARIO.name}, {seeds} seeds per world (seed {SEED0}+k), r = {REPEATS} "
-          f"repeats per test, alpha = {ALPHA}, {args.statics} statics, {args.workers} workers; wall {wall:.0f} s")  # fmt: skip
+          f"repeats per test, {LOADED_REPEATS} loaded repeats, alpha = {ALPHA}, {args.statics} statics, {args.workers} workers; wall {wall:.0f} s")  # fmt: skip
     report(worlds, results, cal, overlap, seeds, wall, t_prep)
     errors = [(k, r) for k, rs in results.items() for r in rs if "error" in r]
     for k, r in errors[:3]:

@@ -9,7 +9,8 @@ import pytest
 from test_dataset import _edit_setup, _edit_tests, _records, _setup, _write
 
 from vtestbed.comparison import read_truth
-from vtestbed.dataset import read_repeats, read_setup, read_tests, write_setup
+from vtestbed.dataset import read_setup, read_tests, write_setup
+from vtestbed.dataset_repeats import read_repeats
 from vtestbed.errors import DatasetError
 
 

@@ -10,7 +10,8 @@ from conftest import paper_scenario_data
 
 from vtestbed import cli, ply
 from vtestbed.campaigns.montecarlo import prepare
-from vtestbed.dataset import REPEATS_FILE, RepeatRecord, RepeatWriter, read_repeats, read_tests
+from vtestbed.dataset import read_tests
+from vtestbed.dataset_repeats import REPEATS_FILE, RepeatRecord, RepeatWriter, read_repeats
 from vtestbed.errors import DatasetError, ScenarioError
 from vtestbed.experiment import simulate
 from vtestbed.scenario import load_scenario, parse_scenario

@@ -12,7 +12,8 @@ from errors_table import Ctx, cli, refused, run_row, section_rows
 from test_dataset import _edit_setup, _edit_tests, _records, _setup, _write
 
 from vtestbed.comparison import read_truth
-from vtestbed.dataset import read_repeats, read_setup, read_tests, write_setup
+from vtestbed.dataset import read_setup, read_tests, write_setup
+from vtestbed.dataset_repeats import read_repeats
 from vtestbed.errors import DatasetError
 from vtestbed.lab import LabSetup
 
@@ -90,6 +91,15 @@ def _repeats(text):
         root = _dataset(ctx)
         (root / "repeats.csv").write_text(text)
         return refused(lambda: read_repeats(root, check_files=False), DatasetError)
+
+    return case
+
+
+def _loaded_repeats(text):
+    def case(ctx):
+        root = _dataset(ctx)
+        (root / "loaded_repeats.csv").write_text(text)
+        return refused(lambda: read_repeats(root, check_files=False, state="loaded"), DatasetError)
 
     return case
 
@@ -227,6 +237,7 @@ CASES = {
     "repeats-cloud-outside": _repeats("test_id,repeat,cloud\nT000,1,/tmp/x.ply\n"),
     "repeats-own-scan": _repeats("test_id,repeat,cloud\nT000,1,clouds/T0_u.ply\n"),
     "repeats-cloud-twice": _repeats("test_id,repeat,cloud\nT000,1,clouds/r.ply\nT001,1,clouds/r.ply\n"),
+    "loaded-repeats-own-scan": _loaded_repeats("test_id,repeat,cloud\nT000,1,clouds/T0_l.ply\n"),
     "gls-floor-few-repeats": _gls_floor_on_few_repeats,
     "identify-reference-no-repeats": _reference_mean_without_repeats,
     "truth-not-json": _truth('{"stiffness_true_Nm_per_rad": [1, 2'),

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import POSE_DEG, paper_scenario_data
 
-from vtestbed import dataset
+from vtestbed import dataset, dataset_repeats
 from vtestbed.campaigns.montecarlo import prepare
 from vtestbed.dataset import DatasetSetup
 from vtestbed.errors import OutOfRangeError, ScanError
@@ -141,7 +141,7 @@ def test_dataset_floor_is_the_in_memory_reduction_of_the_world_draws(tmp_path):
     assert np.all(floor.component_std > 0)
     assert floor.summary().startswith("noise floor from repeat scans: std x y z ")
     # a repeat scan in which the block cannot be found (moved 0.3 m) names its test, number and file
-    rep = dataset.read_repeats(root)[4]
+    rep = dataset_repeats.read_repeats(root)[4]
     write_ply(rep.cloud, read_ply(rep.cloud) + [0.3, 0.0, 0.0])
     with pytest.raises(
         ScanError, match=rf"^test {rep.test_id}, repeat {rep.repeat} cloud {re.escape(str(rep.cloud))}: "

@@ -74,7 +74,7 @@ def test_mean_frame_is_the_mean_deviation_and_the_floor_scales_by_the_closed_for
     assert common_scan_count(ms, lone) == 1
     same, unscaled = against_scan_mean(ms, lone, floor)
     assert unscaled is floor and all(a is b for a, b in zip(same, ms))
-    with pytest.raises(OutOfRangeError, match="already for a mean of 4 scans"):
+    with pytest.raises(OutOfRangeError, match="already for a mean of 4 unloaded and 1 loaded scans"):
         averaged.for_scan_mean(4)
     with pytest.raises(OutOfRangeError, match="must be an integer >= 1"):
         floor.for_scan_mean(0)

@@ -9,6 +9,8 @@ A dataset is a folder::
     repeats.csv    optional: repeat scans of the unloaded block, one row per scan: ``test_id``,
                    ``repeat`` (1, 2, ...), ``cloud`` (path relative to the folder); the block and
                    the scanner did not move between them, so they measure the scanner's noise
+    loaded_repeats.csv  optional: repeat scans of the loaded block, the same columns
+                   (:mod:`vtestbed.dataset_repeats` reads and writes both)
     truth.json     only in simulated datasets; identification never reads it (the world writes
                    it, :mod:`vtestbed.comparison` reads it)
 
@@ -34,8 +36,6 @@ from .transforms import homogeneous, matrix_from_rotation_vector, rotation_vecto
 
 FORMAT = "vtestbed-dataset/1"
 SETUP_FILE, TESTS_FILE, TRUTH_FILE, CLOUD_DIR = "setup.json", "tests.csv", "truth.json", "clouds"
-REPEATS_FILE = "repeats.csv"
-REPEAT_COLUMNS = ["test_id", "repeat", "cloud"]
 GROUPS = ("identification", "validation")
 _UNIT = {"F": "N", "T": "Nm"}
 
@@ -292,108 +292,3 @@ def read_tests(
         dup = sorted({i for i in ids if ids.count(i) > 1})
         raise DatasetError(f"{path}: duplicate test ids {dup}")
     return records
-
-
-# ---------------------------------------------------------------------- repeat scans
-@dataclass(frozen=True)
-class RepeatRecord:
-    """One repeat scan of a test's unloaded block (same block pose, same scanner pose).
-
-    Attributes
-    ----------
-    test_id : str
-        The test (a ``test_id`` of tests.csv) whose unloaded block was scanned again.
-    repeat : int
-        The repeat's number, 1, 2, ... (the test's own unloaded scan is number 0).
-    cloud : Path
-        The scan (PLY, scanner frame); inside the dataset folder.
-    """
-
-    test_id: str
-    repeat: int
-    cloud: Path
-
-    def row(self, root: Path) -> list:
-        root = Path(root).resolve()
-        return [self.test_id, str(self.repeat), str(Path(self.cloud).resolve().relative_to(root))]
-
-
-def repeat_cloud_path(root: str | Path, test_id: str, repeat: int) -> Path:
-    """Where a simulation writes repeat ``repeat`` of ``test_id``: ``clouds/T001_repeat1.ply``."""
-    return Path(root) / CLOUD_DIR / f"{test_id}_repeat{repeat}.ply"
-
-
-def _read_repeat_rows(root: Path, tests, check_files: bool) -> list[RepeatRecord]:
-    """repeats.csv as records; ``tests`` (test id -> TestRecord of tests.csv) is what each row is
-    checked against: a test it lists, a cloud that is not that test's own scan (None: neither)."""
-    path = root / REPEATS_FILE
-    rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
-    records, first_line, seen = [], {}, {}
-    for line, row in rows:
-        tid = row.get("test_id") or ""
-        where = f"{path} line {line} (test {tid!r})"
-        if tests is not None and tid not in tests:
-            raise DatasetError(f"{where}: test_id {tid!r} is not a test of {root / TESTS_FILE}")
-        text = (row.get("repeat") or "").strip()
-        try:
-            repeat = int(text)
-        except ValueError:
-            repeat = 0
-        if repeat < 1:
-            raise DatasetError(f"{where}: repeat must be an integer >= 1 (1, 2, ...), got {text!r}")
-        if (tid, repeat) in first_line:
-            raise DatasetError(
-                f"{where}: repeat {repeat} of test {tid!r} is listed twice (first on line {first_line[tid, repeat]})"
-            )
-        first_line[tid, repeat] = line
-        example = f"{CLOUD_DIR}/{tid}_repeat{repeat}.ply"
-        cloud = checks.cloud_path(root, row["cloud"], where, "cloud", example)
-        if check_files and not cloud.is_file():
-            raise DatasetError(f"{where}: cloud: point cloud {cloud} is missing")
-        if tests is not None:
-            own = {"unloaded": tests[tid].cloud_unloaded, "loaded": tests[tid].cloud_loaded}
-            checks.not_own_scan(cloud, own, root / TESTS_FILE, where, row["cloud"], example)
-        checks.not_listed_twice(seen, cloud, (tid, repeat, line), where, row["cloud"], example)
-        records.append(RepeatRecord(tid, repeat, cloud))
-    return records
-
-
-def read_repeats(root: str | Path, check_files: bool = True) -> list[RepeatRecord]:
-    """Read repeats.csv (the repeat scans), or [] when the dataset has none.
-
-    Parameters
-    ----------
-    root : str or Path
-        The dataset folder.
-    check_files : bool
-        Every referenced cloud must exist.
-
-    Raises
-    ------
-    DatasetError
-        Naming the file, the line and the field: a test_id not in tests.csv, a repeat that is not
-        an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing,
-        a cloud that is the test's own unloaded or loaded scan or another repeat's.
-    """
-    root = Path(root)
-    if not (root / REPEATS_FILE).is_file():
-        return []
-    tests = {r.test_id: r for r in read_tests(root, check_files=False)}
-    return _read_repeat_rows(root, tests, check_files)
-
-
-class RepeatWriter(_RowWriter):
-    """Appends repeat scans to repeats.csv (flushed per row), like :class:`TestWriter`.
-
-    ``done`` holds the (test_id, repeat) pairs already recorded. A simulation writes a test's
-    repeats before its tests.csv row, so the file may name tests that tests.csv does not list yet.
-    """
-
-    FILE, HEADER = REPEATS_FILE, REPEAT_COLUMNS
-
-    def _done_on_disk(self) -> set:
-        return {(r.test_id, r.repeat) for r in _read_repeat_rows(self.root, None, False)}
-
-    @staticmethod
-    def _key(record):
-        return (record.test_id, record.repeat)

@@ -201,19 +201,24 @@ def _same_file(a: Path, b: Path) -> bool:
     return _file_key(a) == _file_key(b)
 
 
-def not_own_scan(cloud: Path, own: dict, tests_file: Path, where: str, text: str, example: str) -> None:
-    """A repeat scan (``cloud``) must not be its test's own scan (``own``: state -> path): the
-    unloaded scan would enter the noise floor as an exact zero, the loaded one as the load's
-    displacement (a floor 10-40 times too large), and neither looks wrong as a number."""
+def not_own_scan(
+    cloud: Path, own: dict, tests_file: Path, where: str, text: str, example: str, block: str = "unloaded"
+) -> None:
+    """A repeat scan (``cloud``) of the ``block`` (unloaded or loaded) must not be its test's own
+    scan (``own``: state -> path): the unloaded scan would enter the noise floor as an exact zero,
+    the loaded one as the load's displacement (a floor 10-40 times too large), and neither looks
+    wrong as a number."""
     for state, path in own.items():
         if _same_file(cloud, path):
             raise DatasetError(
                 f"{where}: cloud {text!r} is the test's own {state} scan (cloud_{state} in {tests_file}); "
-                f"a repeat must be another scan of the unloaded block, in its own file (e.g. {example})"
+                f"a repeat must be another scan of the {block} block, in its own file (e.g. {example})"
             )
 
 
-def not_listed_twice(seen: dict, cloud: Path, row: tuple, where: str, text: str, example: str) -> None:
+def not_listed_twice(
+    seen: dict, cloud: Path, row: tuple, where: str, text: str, example: str, block: str = "unloaded"
+) -> None:
     """A repeat scan (``cloud``; ``row``: its test id, repeat and line) must not be another
     repeat's file too (``seen``: the files so far -> their row): two repeats of one scan enter the
     noise floor as an exact zero, which shrinks it without looking wrong as a number."""
@@ -222,7 +227,7 @@ def not_listed_twice(seen: dict, cloud: Path, row: tuple, where: str, text: str,
         tid, repeat, line = seen[key]
         raise DatasetError(
             f"{where}: cloud {text!r} is already repeat {repeat} of test {tid!r} (line {line}); every "
-            f"repeat must be its own scan of the unloaded block, in its own file (e.g. {example})"
+            f"repeat must be its own scan of the {block} block, in its own file (e.g. {example})"
         )
     seen[key] = row
 

@@ -23,17 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from . import comparison, ply
-from .dataset import (
-    CLOUD_DIR,
-    TRUTH_FILE,
-    DatasetSetup,
-    RepeatRecord,
-    RepeatWriter,
-    TestRecord,
-    TestWriter,
-    repeat_cloud_path,
-    write_setup,
-)
+from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
+from .dataset_repeats import LoadedRepeatWriter, RepeatRecord, RepeatWriter, repeat_cloud_path
 from .errors import DatasetError, ScanError, SensorOverloadError, UnknownNameError
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
@@ -47,7 +38,7 @@ from .scenario import Scenario, load_field, pose_field
 from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
-from .world.repeats import draw_repeat_scans, repeat_rng
+from .world.repeats import draw_repeat_scans, loaded_repeat_rng, repeat_rng
 from .world.rig import Rig
 from .world.sensors import ForceTorqueSensor
 from .world.truth import load_truth
@@ -145,6 +136,8 @@ def simulate(
     gets ``r`` repeat scans of its unloaded block (``clouds/<id>_repeatK.ply`` and rows of
     ``repeats.csv``), written before the test's tests.csv row, which marks the test finished;
     ``truth.json`` records ``"repeats": r``. setup.json and tests.csv do not depend on ``r``.
+    ``scenario.scanner.loaded_repeats = r' > 0`` adds ``r'`` scans of the loaded block
+    (``clouds/<id>_loaded_repeatK.ply``, ``loaded_repeats.csv``), written the same way.
     """
     out = Path(out)
     timings = timings or Timings()
@@ -153,8 +146,10 @@ def simulate(
     with folder_lock(out, "dataset folder", DatasetError):  # one writer at a time
         rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)
         truth = start_truth(out, scenario, rig, replace_stale)  # refuses another command's folder
-        repeats = scenario.scanner.repeats
+        repeats, loaded_repeats = scenario.scanner.repeats, scenario.scanner.loaded_repeats
         truth["repeats"] = repeats
+        if loaded_repeats:  # absent otherwise: the truth of every other dataset stays as it was
+            truth["loaded_repeats"] = loaded_repeats
         jobs = [("identification", i, q, scenario.load) for i, q in enumerate(scenario.poses)]
         jobs += [
             ("validation", i, q, scenario.validation_load) for i, q in enumerate(scenario.validation_poses)
@@ -173,20 +168,23 @@ def simulate(
         with ExitStack() as stack:
             writer = stack.enter_context(TestWriter(out))
             repeat_writer = stack.enter_context(RepeatWriter(out)) if repeats else None
+            loaded_writer = stack.enter_context(LoadedRepeatWriter(out)) if loaded_repeats else None
             todos = {
-                test_id(g, i): [k for k in range(1, repeats + 1) if (test_id(g, i), k) not in repeat_writer.done]
-                if repeats else []
+                test_id(g, i): _repeats_to_do(repeat_writer, test_id(g, i), repeats) for g, i, _, _ in jobs
+            }
+            loaded_todos = {
+                test_id(g, i): _repeats_to_do(loaded_writer, test_id(g, i), loaded_repeats)
                 for g, i, _, _ in jobs
-            }  # fmt: skip
+            }
             lost = lost_clouds(out, writer.done)  # redone from the test's own stream, byte for byte
             needed = [job for job in jobs if test_id(*job[:2]) not in writer.done or todos[test_id(*job[:2])]
-                      or test_id(*job[:2]) in lost]  # fmt: skip
+                      or loaded_todos[test_id(*job[:2])] or test_id(*job[:2]) in lost]  # fmt: skip
 
             computed = stack.enter_context(closing(_scenario_physics(scenario, rig, needed)))
             for group, i, q, load in jobs:
                 tid = test_id(group, i)
                 todo = todos[tid]
-                if tid not in writer.done or todo or tid in lost:
+                if tid not in writer.done or todo or loaded_todos[tid] or tid in lost:
                     phys, test_timings = next(computed)
                     timings.physics += test_timings.physics  # summed over threads that overlap
                     timings.scan += test_timings.scan
@@ -200,6 +198,14 @@ def simulate(
                     for k in todo:
                         path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
                         repeat_writer.append(RepeatRecord(tid, k, path))
+                    timings.write += time.perf_counter() - t2
+                if loaded_todos[tid]:  # the loaded block scanned again, from its own stream
+                    t2 = time.perf_counter()
+                    rng = loaded_repeat_rng(scenario.seed, group, i)
+                    clouds = draw_repeat_scans(phys.hits_loaded, noise, rng, loaded_repeats, scenario.effects)
+                    for k in loaded_todos[tid]:
+                        path = ply.write_ply(repeat_cloud_path(out, tid, k, "loaded"), clouds[k - 1])
+                        loaded_writer.append(RepeatRecord(tid, k, path))
                     timings.write += time.perf_counter() - t2
                 if tid not in writer.done or tid in lost:
                     rng = test_rng(scenario.seed, group, i)
@@ -258,6 +264,11 @@ def simulate(
     return out
 
 
+def _repeats_to_do(writer, tid: str, repeats: int) -> list[int]:
+    """The repeat numbers 1..``repeats`` of test ``tid`` that ``writer``'s file does not hold yet."""
+    return [k for k in range(1, repeats + 1) if (tid, k) not in writer.done] if repeats else []
+
+
 def identify_dataset(
     root: str | Path,
     method: str = "fgls",
@@ -296,7 +307,7 @@ def identify_dataset_with_floor(
     or ``reference="mean"`` scales it). With ``reference="mean"`` the measurements and the floor
     are those of displacements against each test's mean unloaded frame.
     """
-    from .researcher.scan_mean import REFERENCES, against_reference
+    from .researcher.scan_mean import REFERENCES, against_reference, loaded_scan_frames
 
     if reference not in REFERENCES:  # before any cloud is read
         raise UnknownNameError("displacement reference", reference, REFERENCES)
@@ -326,7 +337,10 @@ def identify_dataset_with_floor(
 
         frames = repeat_scan_frames(root, measurements)
         noise_floor = None if frames is None else noise_floor_from_frames(frames)
-        measurements, noise_floor = against_reference(reference, measurements, frames, noise_floor, root)
+        loaded = loaded_scan_frames(root, measurements) if reference != "scan" else None
+        measurements, noise_floor = against_reference(
+            reference, measurements, frames, noise_floor, root, loaded
+        )
     result = identify_measurements(
         measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
         source=str(root),

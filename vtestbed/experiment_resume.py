@@ -17,7 +17,8 @@ import shutil
 from pathlib import Path
 
 from . import comparison
-from .dataset import CLOUD_DIR, REPEATS_FILE, TESTS_FILE, TRUTH_FILE, read_tests
+from .dataset import CLOUD_DIR, TESTS_FILE, TRUTH_FILE, read_tests
+from .dataset_repeats import REPEAT_FILES
 from .errors import DatasetError
 from .output_folders import SIMULATED, require_own_kind
 from .scenario import Scenario
@@ -25,7 +26,7 @@ from .scenario import Scenario
 
 def remove_dataset(out: Path) -> None:
     """Delete the files a simulation writes in ``out`` (and nothing else)."""
-    for name in (TRUTH_FILE, TESTS_FILE, "setup.json", REPEATS_FILE):
+    for name in (TRUTH_FILE, TESTS_FILE, "setup.json", *REPEAT_FILES.values()):
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / CLOUD_DIR, ignore_errors=True)
 

@@ -75,7 +75,9 @@ class ScannerPlan:
     ``noise_params`` are the file's overrides of :class:`ScanNoise`; ``noise_model`` is the
     model they give (None for a perfect scanner, ``noise = false``). ``repeats`` is the number
     of further scans of the unloaded block per test (``repeats.csv`` in the dataset), from which
-    the researcher estimates a model-free noise floor (:mod:`vtestbed.researcher.noise_floor`).
+    the researcher estimates a model-free noise floor (:mod:`vtestbed.researcher.noise_floor`);
+    ``loaded_repeats`` the number of further scans of the loaded block (``loaded_repeats.csv``),
+    which the mean-scan displacements average (:mod:`vtestbed.researcher.scan_mean`).
     """
 
     distance: float = DEFAULT_SCANNER_DISTANCE_M  # m, scanner to block centre
@@ -84,6 +86,7 @@ class ScannerPlan:
     spacing: float | None = None  # m, point spacing on the block; None: the scanner's default
     noise_model: ScanNoise | None = field(default_factory=ScanNoise)
     repeats: int = 0  # repeat scans of the unloaded block per test, REPEATS_RANGE
+    loaded_repeats: int = 0  # repeat scans of the loaded block per test, REPEATS_RANGE
 
     @property
     def placement(self) -> dict:
@@ -202,7 +205,9 @@ def _load_plan(table, count: int, lab: LabSetup, f: Fields, prefix: str) -> Load
 
 
 def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
-    f.table(table, "scanner", ("distance_m", "noise", "noise_params", "spacing_m", "repeats"))
+    f.table(
+        table, "scanner", ("distance_m", "noise", "noise_params", "spacing_m", "repeats", "loaded_repeats")
+    )
     noise = f.boolean(table.get("noise", True), "scanner.noise")
     params = f.table(
         table.get("noise_params", {}), "scanner.noise_params", tuple(ScanNoise.__dataclass_fields__)
@@ -221,6 +226,7 @@ def _scanner_plan(table, lab: LabSetup, f: Fields) -> ScannerPlan:
         spacing=None if spacing is None else f.number(spacing, "scanner.spacing_m", *POINT_SPACING_RANGE_M),
         noise_model=model if noise else None,
         repeats=f.integer(table.get("repeats", 0), "scanner.repeats", *REPEATS_RANGE),
+        loaded_repeats=f.integer(table.get("loaded_repeats", 0), "scanner.loaded_repeats", *REPEATS_RANGE),
     )  # fmt: skip
 
 

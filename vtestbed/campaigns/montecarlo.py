@@ -342,9 +342,13 @@ def trial(
     if method == "gls_floor" or reference != "scan":
         frames = _trial_frames(prepared, seed, tests, measurements, noise)
         floor = None if frames is None else noise_floor_from_frames(frames)
-        measurements, floor = against_reference(
-            reference, measurements, frames, floor, f"scenario {prepared.scenario.name!r}"
+        loaded = (
+            None
+            if reference == "scan"
+            else _trial_frames(prepared, seed, tests, measurements, noise, "loaded")
         )
+        where = f"scenario {prepared.scenario.name!r}"
+        measurements, floor = against_reference(reference, measurements, frames, floor, where, loaded)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(
@@ -352,36 +356,54 @@ def trial(
         )
 
 
-def _trial_frames(prepared: PreparedScenario, seed: int, tests, measurements, noise):
-    """:func:`repeat_frames` of one trial's tests (``scanner.repeats`` repeats each), or None
-    without repeats or scanner noise (the researcher's code then says what is missing)."""
+def _trial_frames(prepared: PreparedScenario, seed: int, tests, measurements, noise, state="unloaded"):
+    """:func:`repeat_frames` of one trial's tests (``scanner.repeats`` repeats each; ``state=
+    "loaded"``: ``scanner.loaded_repeats``), or None without them or without scanner noise (the
+    researcher's code then says what is missing)."""
     sc = prepared.scenario
     noise = _scan_noise(prepared, noise)
-    if noise is None or sc.scanner.repeats < 1:
+    repeats = sc.scanner.loaded_repeats if state == "loaded" else sc.scanner.repeats
+    if noise is None or repeats < 1:
         return None
-    return repeat_frames(prepared, seed, tests, measurements, noise, sc.scanner.repeats)
+    return repeat_frames(prepared, seed, tests, measurements, noise, repeats, state)
 
 
 def repeat_frames(
-    prepared: PreparedScenario, seed: int, tests, measurements, noise: ScanNoise, repeats: int
+    prepared: PreparedScenario,
+    seed: int,
+    tests,
+    measurements,
+    noise: ScanNoise,
+    repeats: int,
+    state: str = "unloaded",
 ) -> dict[str, list[np.ndarray]]:
-    """Per test, the fitted frames (4, 4) of its unloaded scan and ``repeats`` repeat scans.
+    """Per test, the fitted frames (4, 4) of its unloaded scan and ``repeats`` repeat scans
+    (``state="loaded"``: of its loaded scan and ``repeats`` loaded repeats).
 
     The repeats are drawn as ``simulate`` writes them (:func:`~vtestbed.world.repeats.repeat_rng`
-    of trial ``seed``) with the world's effects, and fitted by the researcher's pipeline
-    (:func:`~vtestbed.researcher.noise_floor.scan_frames`); ``measurements`` are the trial's
-    reduced tests (their unloaded frames are reused).
+    or ``loaded_repeat_rng`` of trial ``seed``) with the world's effects, and fitted by the
+    researcher's pipeline (:func:`~vtestbed.researcher.noise_floor.scan_frames`; a loaded repeat
+    from the loaded frame, as :func:`~vtestbed.researcher.scan_mean.loaded_scan_frames` does);
+    ``measurements`` are the trial's reduced tests (their frames are reused).
     """
+    from ..researcher.measure import fit_scan
     from ..researcher.noise_floor import scan_frames
-    from ..world.repeats import draw_repeat_scans, repeat_rng
+    from ..world.repeats import draw_repeat_scans, loaded_repeat_rng, repeat_rng
 
-    effects = prepared.scenario.effects
+    effects, setup = prepared.scenario.effects, prepared.setup
     frames = {}
     for t, m in zip(tests, measurements):
-        clouds = draw_repeat_scans(
-            t.hits_unloaded, noise, repeat_rng(seed, t.group, t.index), repeats, effects
-        )
+        if state == "loaded":
+            rng = loaded_repeat_rng(seed, t.group, t.index)
+            clouds = draw_repeat_scans(t.hits_loaded, noise, rng, repeats, effects)
+            frames[t.test_id] = [m.frame_loaded] + [
+                fit_scan(c, m.frame_loaded, setup, f"test {t.test_id}, loaded repeat {k} cloud")
+                for k, c in enumerate(clouds, start=1)
+            ]
+            continue
+        rng = repeat_rng(seed, t.group, t.index)
+        clouds = draw_repeat_scans(t.hits_unloaded, noise, rng, repeats, effects)
         frames[t.test_id] = scan_frames(
-            t.record(), None, clouds, prepared.setup, prepared.kinematics, m.frame_unloaded
+            t.record(), None, clouds, setup, prepared.kinematics, m.frame_unloaded
         )
     return frames

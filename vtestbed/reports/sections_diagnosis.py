@@ -20,7 +20,8 @@ def noise_floor(folder: ResultFolder) -> Section:
     facts = KeyValues([("dataset", r["dataset"]), ("statics of the baseline", r["statics"]),
                        ("alpha (family-wise)", Num(r["alpha"], "g")),
                        ("repeat-scan samples", str(nf["n_samples"])),
-                       ("unloaded scans averaged per displacement", str(nf.get("reference_scans", 1)))],
+                       ("unloaded scans averaged per displacement", str(nf.get("reference_scans", 1))),
+                       ("loaded scans averaged per displacement", str(nf.get("loaded_scans", 1)))],
                       id="diagnosis-facts")  # fmt: skip
     table = Table(["component", "noise floor std [um | urad]", "baseline residual RMS / floor"], rows,
                   id="noise-floor")  # fmt: skip

@@ -97,7 +97,9 @@ def scenario(folder: ResultFolder) -> Section:
                  ("scanner noise", "off" if noise is None else
                   f"{noise.range_std_m * 1e6:g} um per point, drift {noise.drift_translation_std_m * 1e6:g} um / "
                   f"{noise.drift_rotation_std_rad * 1e6:g} urad per scan, {noise.outlier_fraction * 100:g} % outliers"),
-                 ("repeat scans per test", str(sc.scanner.repeats)),
+                 ("repeat scans per test (unloaded, loaded)", f"{sc.scanner.repeats}, {sc.scanner.loaded_repeats}"),
+                 ("displacements measured from", "the mean of each test's scans" if sc.reference == "mean"
+                  else "one unloaded and one loaded scan (the paper's)"),
                  ("F/T noise std [N, N*m]", ", ".join(f"{v:g}" for v in sc.force_sensor.noise_std)),
                  ("F/T bias [N, N*m]", ", ".join(f"{v:g}" for v in sc.force_sensor.bias)),
                  ("wire tension [N]", ", ".join(f"{v:g}" for v in sorted(set(sc.load.tensions)))),

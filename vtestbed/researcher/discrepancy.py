@@ -97,7 +97,7 @@ def diagnose(
         "statics": statics,
         "candidates": list(names),
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples),
-                        "reference_scans": floor.reference_scans},
+                        "reference_scans": floor.reference_scans, "loaded_scans": floor.loaded_scans},
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
@@ -240,11 +240,13 @@ def _per_test(white: Whitener, residuals: np.ndarray) -> list:
     return np.sqrt(np.sum(white(residuals.reshape(-1)).reshape(-1, 6) ** 2, axis=1) / 6).tolist()
 
 
-def _reference_text(scans: int) -> str:
+def _reference_text(scans: int, loaded: int = 1) -> str:
     """How the displacements were measured (:mod:`.scan_mean`)."""
-    if scans == 1:
+    if scans == 1 and loaded == 1:
         return "displacements from one unloaded scan, as the paper measures them"
-    return f"displacements against the mean of {scans} unloaded scans per test"
+    if loaded == 1:
+        return f"displacements against the mean of {scans} unloaded scans per test"
+    return f"displacements from the mean of {scans} unloaded to the mean of {loaded} loaded scans per test"
 
 
 def markdown(report: dict, joint_names) -> str:
@@ -253,7 +255,7 @@ def markdown(report: dict, joint_names) -> str:
         f"# Discrepancy report: {report['dataset']}",
         "",
         f"Noise floor (repeat scans, {report['noise_floor']['n_samples']} samples; "
-        f"{_reference_text(report['noise_floor'].get('reference_scans', 1))}): "
+        f"{_reference_text(report['noise_floor'].get('reference_scans', 1), report['noise_floor'].get('loaded_scans', 1))}): "
         + ", ".join(f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, report["noise_floor"]["component_std"]))
         + " (um, urad)",
         "",

@@ -50,7 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import DatasetSetup, TestRecord, read_repeats, read_setup, read_tests
+from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
+from ..dataset_repeats import read_repeats
 from ..errors import OutOfRangeError
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
@@ -89,6 +90,9 @@ class NoiseFloor:
         The unloaded scans each displacement is measured against: 1 (the estimate, a single-scan
         displacement's floor) or ``m`` after :meth:`for_scan_mean`, whose covariance is the
         floor of a displacement against the mean of ``m`` unloaded scans.
+    loaded_scans : int
+        The loaded scans averaged at the other end of each displacement: 1 (the test's own) or
+        ``m'`` after :meth:`for_scan_mean` with loaded repeats.
     """
 
     covariance: np.ndarray
@@ -96,23 +100,35 @@ class NoiseFloor:
     n_tests: int
     test_ids: tuple[str, ...] = ()
     reference_scans: int = 1  # unloaded scans averaged into each displacement (:meth:`for_scan_mean`)
+    loaded_scans: int = 1  # loaded scans averaged into each displacement
 
-    def for_scan_mean(self, scans: int) -> NoiseFloor:
-        """The floor of a displacement measured against the mean of ``scans`` unloaded scans.
+    def for_scan_mean(self, scans: int, loaded_scans: int = 1) -> NoiseFloor:
+        """The floor of a displacement measured from the mean of ``scans`` unloaded scans to the
+        mean of ``loaded_scans`` loaded ones.
 
         A displacement is the loaded scan's frame minus the unloaded one's: with per-scan
-        covariance ``S`` it has ``2 S``, the floor estimated from pairs of repeats. Against the
-        mean of ``m`` unloaded scans it has ``S (1 + 1 / m)``, so the floor scales by
-        ``(1 + 1 / m) / 2`` (0.625 with a test's scan and 3 repeats: 1.6 times the information per
-        test). The sample count stays: the scale is known, not estimated.
+        covariance ``S`` it has ``2 S``, the floor estimated from pairs of repeats. From the mean
+        of ``m`` unloaded scans to the mean of ``m'`` loaded ones it has ``S (1 / m + 1 / m')``, so
+        the floor scales by ``(1 / m + 1 / m') / 2``: 0.625 with a test's unloaded scan and 3
+        repeats (1.6 times the information per test), 0.25 with 3 repeats of the loaded block too
+        (4 times). The sample count stays: the scale is known, not estimated.
         (:mod:`.scan_mean` builds such displacements.)
         """
-        if self.reference_scans != 1:
-            raise OutOfRangeError(f"this floor is already for a mean of {self.reference_scans} scans")
-        if int(scans) != scans or scans < 1:
-            raise OutOfRangeError(f"scans = {scans!r} must be an integer >= 1 (1: the test's own scan)")
-        scale = (1.0 + 1.0 / scans) / 2.0
-        return dataclasses.replace(self, covariance=self.covariance * scale, reference_scans=int(scans))
+        if self.reference_scans != 1 or self.loaded_scans != 1:
+            raise OutOfRangeError(
+                f"this floor is already for a mean of {self.reference_scans} unloaded and "
+                f"{self.loaded_scans} loaded scans"
+            )
+        for name, value in (("scans", scans), ("loaded_scans", loaded_scans)):
+            if int(value) != value or value < 1:
+                raise OutOfRangeError(f"{name} = {value!r} must be an integer >= 1 (1: the test's own scan)")
+        scale = (1.0 / scans + 1.0 / loaded_scans) / 2.0
+        return dataclasses.replace(
+            self,
+            covariance=self.covariance * scale,
+            reference_scans=int(scans),
+            loaded_scans=int(loaded_scans),
+        )
 
     @property
     def component_std(self) -> np.ndarray:
@@ -190,6 +206,7 @@ class NoiseFloor:
             "n_tests": self.n_tests,
             "test_ids": list(self.test_ids),
             "reference_scans": self.reference_scans,
+            "loaded_scans": self.loaded_scans,
         }
 
     def summary(self) -> str:
@@ -200,9 +217,9 @@ class NoiseFloor:
             f"rx ry rz {std[3]:.2f} {std[4]:.2f} {std[5]:.2f} urad ({self.n_samples} samples from "
             f"{self.n_tests} tests, each std +-{self.relative_std_uncertainty * 100:.0f} %)"
             + (
-                f"; displacements against the mean of {self.reference_scans} unloaded scans: "
-                f"covariance x {(1 + 1 / self.reference_scans) / 2:.3g}"
-                if self.reference_scans > 1
+                f"; displacements from the mean of {self.reference_scans} unloaded scans to the mean of "
+                f"{self.loaded_scans} loaded: covariance x {(1 / self.reference_scans + 1 / self.loaded_scans) / 2:.3g}"
+                if self.reference_scans > 1 or self.loaded_scans > 1
                 else ""
             )
         )

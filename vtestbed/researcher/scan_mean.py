@@ -13,6 +13,11 @@ independent of its sample covariance, so the mean frame (what the displacement n
 the repeats' scatter (what the floor uses) are independent, which the single unloaded scan, one
 member of that scatter, is not quite.
 
+A lab may scan the loaded block again too (``loaded_repeats.csv``, :mod:`vtestbed.dataset_repeats`):
+then the loaded end is averaged as well, ``m'`` loaded scans, and the noise is ``S (1 / m + 1 / m')``,
+0.25 of the paper's with 3 repeats at each end (4 times the information per test). The loaded
+repeats do not enter the floor (a loaded block may creep between scans).
+
 Which tests: every test of the dataset against the mean of its first ``m`` unloaded scans, ``m``
 the fewest any test has (:func:`common_scan_count`), so that one floor, scaled by
 :meth:`.NoiseFloor.for_scan_mean`, whitens every test (identification and validation alike). A
@@ -33,11 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import DatasetSetup
+from ..dataset import DatasetSetup, read_setup
+from ..dataset_repeats import read_repeats
 from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import require_floor
-from .measure import TestMeasurement, load_measurements
+from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
 from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
 
 __all__ = [
@@ -46,6 +52,7 @@ __all__ = [
     "against_scan_mean",
     "common_scan_count",
     "load_with_floor",
+    "loaded_scan_frames",
     "mean_frame",
 ]
 
@@ -61,10 +68,10 @@ def mean_frame(frames: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def common_scan_count(
-    measurements: Sequence[TestMeasurement], frames_by_test: Mapping[str, Sequence[np.ndarray]]
+    measurements: Sequence[TestMeasurement], frames_by_test: Mapping[str, Sequence[np.ndarray]] | None
 ) -> int:
-    """The fewest unloaded scans (the test's own and its repeats) any measured test has (>= 1)."""
-    if not measurements:
+    """The fewest scans of a block (the test's own and its repeats) any measured test has (>= 1)."""
+    if not measurements or not frames_by_test:
         return 1
     return min(max(len(frames_by_test.get(m.test_id, ())), 1) for m in measurements)
 
@@ -73,8 +80,10 @@ def against_scan_mean(
     measurements: Sequence[TestMeasurement],
     frames_by_test: Mapping[str, Sequence[np.ndarray]],
     floor: NoiseFloor,
+    loaded_frames: Mapping[str, Sequence[np.ndarray]] | None = None,
 ) -> tuple[list[TestMeasurement], NoiseFloor]:
-    """Every test's displacement against the mean of its first ``m`` unloaded scans, and the floor for it.
+    """Every test's displacement from the mean of its first ``m`` unloaded scans (to the mean of
+    its first ``m'`` loaded scans, with loaded repeats), and the floor for it.
 
     Parameters
     ----------
@@ -85,25 +94,55 @@ def against_scan_mean(
         its repeats (:func:`.noise_floor.repeat_scan_frames`).
     floor : NoiseFloor
         The floor of single-scan displacements, from the same frames.
+    loaded_frames : mapping test_id -> sequence of (4, 4) arrays, optional
+        Per test, the frames of its loaded scan (first, ``TestMeasurement.frame_loaded``) and its
+        loaded repeats (:func:`loaded_scan_frames`); None: the loaded scan alone.
 
     Returns
     -------
     measurements : list of TestMeasurement
-        ``frame_unloaded`` the mean frame, ``displacement`` from it to the loaded frame; the
-        measurements themselves when ``m = 1``.
+        ``frame_unloaded`` and ``frame_loaded`` the mean frames, ``displacement`` between them;
+        the measurements themselves when ``m = m' = 1``.
     floor : NoiseFloor
-        ``floor.for_scan_mean(m)``: covariance times ``(1 + 1 / m) / 2``.
+        ``floor.for_scan_mean(m, m')``: covariance times ``(1 / m + 1 / m') / 2``.
     """
     m = common_scan_count(measurements, frames_by_test)
-    if m == 1:
+    m_loaded = common_scan_count(measurements, loaded_frames)
+    if m == 1 and m_loaded == 1:
         return list(measurements), floor
     out = []
     for t in measurements:
-        ref = mean_frame(list(frames_by_test[t.test_id])[:m])
-        out.append(
-            replace(t, frame_unloaded=ref, displacement=displacement_in_block_frame(ref, t.frame_loaded))
-        )
-    return out, floor.for_scan_mean(m)
+        ref = mean_frame(list(frames_by_test[t.test_id])[:m]) if m > 1 else t.frame_unloaded
+        loaded = mean_frame(list(loaded_frames[t.test_id])[:m_loaded]) if m_loaded > 1 else t.frame_loaded
+        moved = displacement_in_block_frame(ref, loaded)
+        out.append(replace(t, frame_unloaded=ref, frame_loaded=loaded, displacement=moved))
+    return out, floor.for_scan_mean(m, m_loaded)
+
+
+def loaded_scan_frames(
+    root: str | Path, measurements: Sequence[TestMeasurement]
+) -> dict[str, list[np.ndarray]] | None:
+    """Per test with loaded repeats, the frames (4, 4) of its loaded scan (the measurement's) and of
+    each loaded repeat (scanner frame), or None when the dataset has no ``loaded_repeats.csv``.
+
+    Each repeat is fitted from the test's loaded frame, as the loaded scan is fitted from the
+    unloaded one (:func:`.measure.measure_arrays`). Errors name the test, the repeat and the file.
+    """
+    root = Path(root)
+    repeats = read_repeats(root, state="loaded")
+    if not repeats:
+        return None
+    setup = read_setup(root)
+    by_id = {m.test_id: m for m in measurements}
+    frames: dict[str, list[np.ndarray]] = {}
+    for rep in sorted(repeats, key=lambda r: r.repeat):
+        if rep.test_id not in by_id:
+            continue  # a test not measured here (read_repeats checked it is one of tests.csv)
+        start = by_id[rep.test_id].frame_loaded
+        label = f"test {rep.test_id}, loaded repeat {rep.repeat} cloud"
+        fitted = fit_scan(read_scan(rep.cloud, label), start, setup, f"{label} {rep.cloud}")
+        frames.setdefault(rep.test_id, [start]).append(fitted)
+    return frames
 
 
 def load_with_floor(root: str | Path) -> tuple[DatasetSetup, list[TestMeasurement], NoiseFloor]:
@@ -111,12 +150,14 @@ def load_with_floor(root: str | Path) -> tuple[DatasetSetup, list[TestMeasuremen
 
     The tests reduced (:func:`.measure.load_measurements`), the repeat scans' noise floor
     (required: :func:`.diagnose.require_floor` says how to record them), and every displacement
-    against its test's mean unloaded frame with the floor for it (:func:`against_scan_mean`).
+    against its test's mean unloaded frame (to its mean loaded frame when the dataset has
+    loaded repeats) with the floor for it (:func:`against_scan_mean`).
     """
     setup, measurements = load_measurements(root)
     frames = repeat_scan_frames(root, measurements)
     floor = require_floor(None if frames is None else noise_floor_from_frames(frames), root)
-    measurements, floor = against_scan_mean(measurements, frames, floor)
+    loaded = loaded_scan_frames(root, measurements)
+    measurements, floor = against_scan_mean(measurements, frames, floor, loaded)
     return setup, measurements, floor
 
 
@@ -126,10 +167,12 @@ def against_reference(
     frames_by_test: Mapping[str, Sequence[np.ndarray]] | None,
     floor: NoiseFloor | None,
     source: str | Path = "the dataset",
+    loaded_frames: Mapping[str, Sequence[np.ndarray]] | None = None,
 ) -> tuple[list[TestMeasurement], NoiseFloor | None]:
     """The measurements and floor for ``reference`` (one of :data:`REFERENCES`).
 
-    ``"scan"`` returns them unchanged. ``"mean"`` is :func:`against_scan_mean`, asked for
+    ``"scan"`` returns them unchanged (the paper's: one scan at each end). ``"mean"`` is
+    :func:`against_scan_mean` (with ``loaded_frames``, the loaded end averaged too), asked for
     explicitly: a dataset without repeat scans (``frames_by_test`` None), or with a test that has
     none, raises a DatasetError naming ``source`` and those tests, instead of falling back to
     the single scan as the discrepancy workflow does.
@@ -155,4 +198,4 @@ def against_reference(
             f"{' ...' if len(lacking) > 10 else ''} ha{'ve' if len(lacking) > 1 else 's'} no repeat "
             "scan in repeats.csv: record at least one for every test, or use reference 'scan' (the paper's)"
         )
-    return against_scan_mean(measurements, frames_by_test, floor)
+    return against_scan_mean(measurements, frames_by_test, floor, loaded_frames)

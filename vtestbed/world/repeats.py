@@ -1,4 +1,4 @@
-"""Repeat scans of the unloaded block: the truth world's side of a model-free noise floor.
+"""Repeat scans of the unloaded block (a model-free noise floor) and of the loaded block.
 
 A lab measures its own noise by scanning the unloaded block again, ``r`` more times, without
 touching anything: the block does not move between the scans and the scanner stands where it
@@ -11,7 +11,10 @@ Seeds: the repeats of test ``index`` of ``group`` draw from
 ``SeedSequence(seed, spawn_key=(group key, index, 1))`` (:func:`repeat_rng`), a stream separate
 from the test's own (:func:`vtestbed.world.physics.test_rng`, spawn key ``(group key, index)``),
 so taking repeats changes no number of the test itself, and repeat ``k`` is the same whatever
-the number of repeats asked for (the stream is consumed in order).
+the number of repeats asked for (the stream is consumed in order). A lab may also scan the
+loaded block again, wire still tensioned (``[scanner] loaded_repeats``): those draw from
+:func:`loaded_repeat_rng`, spawn key ``(group key, index, 2)``, on the loaded geometry, so that
+the researcher can average both ends of a displacement (:mod:`vtestbed.researcher.scan_mean`).
 """
 
 from __future__ import annotations
@@ -21,9 +24,10 @@ import numpy as np
 from .physics import GROUP_KEYS
 from .scan_noise import ScanGeometry, ScanNoise
 
-__all__ = ["REPEAT_STREAM", "draw_repeat_scans", "repeat_rng"]
+__all__ = ["LOADED_REPEAT_STREAM", "REPEAT_STREAM", "draw_repeat_scans", "loaded_repeat_rng", "repeat_rng"]
 
 REPEAT_STREAM = 1  # last spawn-key entry of the repeat scans' stream
+LOADED_REPEAT_STREAM = 2  # last spawn-key entry of the loaded block's repeat scans
 
 
 def repeat_rng(seed: int, group: str, index: int) -> np.random.Generator:
@@ -47,6 +51,13 @@ def repeat_rng(seed: int, group: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 
+def loaded_repeat_rng(seed: int, group: str, index: int) -> np.random.Generator:
+    """The generator of the loaded block's repeat scans of test ``index`` of ``group``: as
+    :func:`repeat_rng`, independent of it and of the test's own stream."""
+    key = (GROUP_KEYS[group], index, LOADED_REPEAT_STREAM)
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
 def draw_repeat_scans(
     hits_unloaded: ScanGeometry,
     noise: ScanNoise | None,
@@ -54,7 +65,8 @@ def draw_repeat_scans(
     repeats: int,
     effects: tuple = (),
 ) -> list[np.ndarray]:
-    """``repeats`` further noisy scans of one test's unloaded block, same scanner pose.
+    """``repeats`` further noisy scans of one test's unloaded block, same scanner pose (or of its
+    loaded block: ``hits_unloaded`` the loaded hits, ``rng`` :func:`loaded_repeat_rng`).
 
     Parameters
     ----------
