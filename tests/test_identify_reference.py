@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from conftest import paper_scenario_data
-from scipy.spatial.transform import Rotation
+from scan_mean_helpers import scipy_mean_frame
 
 from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed.cli.main import main
@@ -18,15 +18,6 @@ from vtestbed.researcher.measure import load_measurements
 from vtestbed.researcher.noise_floor import repeat_scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame
-
-
-def scipy_mean_frame(frames):
-    """(4, 4): translations averaged, rotations by scipy's quaternion (chordal) mean: an
-    independent average, equal to the researcher's to second order in the microradian scatter."""
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_matrix(np.array([f[:3, :3] for f in frames])).mean().as_matrix()
-    out[:3, 3] = np.mean([f[:3, 3] for f in frames], axis=0)
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 from conftest import paper_scenario_data
-from scipy.spatial.transform import Rotation
+from scan_mean_helpers import Reduced, perturbed, scipy_mean_frame
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames, trial
 from vtestbed.dataset_repeats import LOADED_REPEATS_FILE, REPEATS_FILE, read_repeats
@@ -19,26 +19,6 @@ from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan
 from vtestbed.researcher.scan_mean import against_scan_mean, load_with_floor, loaded_scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
-
-
-def perturbed(pose, xi):
-    return pose @ homogeneous(matrix_from_rotation_vector(xi[3:]), xi[:3])
-
-
-def scipy_mean_frame(frames):
-    """Translations averaged, rotations by scipy's quaternion mean (an independent average)."""
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_matrix(np.array([f[:3, :3] for f in frames])).mean().as_matrix()
-    out[:3, 3] = np.mean([f[:3, 3] for f in frames], axis=0)
-    return out
-
-
-@dataclasses.dataclass(frozen=True)
-class Reduced:  # the fields of a TestMeasurement that against_scan_mean reads and replaces
-    test_id: str
-    frame_unloaded: np.ndarray
-    frame_loaded: np.ndarray
-    displacement: np.ndarray
 
 
 def test_both_ends_averaged_have_the_closed_form_noise():

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 from conftest import paper_scenario_data
+from scan_mean_helpers import Reduced, perturbed
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.errors import DatasetError, OutOfRangeError
@@ -15,18 +16,6 @@ from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan
 from vtestbed.researcher.scan_mean import against_scan_mean, common_scan_count, load_with_floor, mean_frame
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
-
-
-@dataclasses.dataclass(frozen=True)
-class Reduced:  # the fields of a TestMeasurement that against_scan_mean reads and replaces
-    test_id: str
-    frame_unloaded: np.ndarray
-    frame_loaded: np.ndarray
-    displacement: np.ndarray
-
-
-def perturbed(pose, xi):
-    return pose @ homogeneous(matrix_from_rotation_vector(xi[3:]), xi[:3])
 
 
 def test_mean_frame_is_the_mean_deviation_and_the_floor_scales_by_the_closed_form():

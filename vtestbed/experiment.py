@@ -305,7 +305,8 @@ def identify_dataset_with_floor(
     Returns (setup, measurements, IdentificationResult, NoiseFloor or None); the floor is None
     without repeat scans or with ``floor=False`` (unless ``method`` weights with it, "gls_floor",
     or ``reference="mean"`` scales it). With ``reference="mean"`` the measurements and the floor
-    are those of displacements against each test's mean unloaded frame.
+    are those of displacements against each test's mean unloaded frame (to its mean loaded frame
+    when the dataset has loaded repeats).
     """
     from .researcher.scan_mean import REFERENCES, against_reference, loaded_scan_frames
 
