@@ -57,7 +57,8 @@ __all__ = [
 ]
 
 # What each displacement is measured against: "scan", the test's own unloaded scan (the paper's
-# method, and `vtestbed identify`'s default), or "mean", the mean of the test's unloaded scans.
+# method, and `vtestbed identify`'s default), or "mean", the mean of the test's unloaded scans
+# (to the mean of its loaded scans when the dataset has loaded repeats).
 REFERENCES = ("scan", "mean")
 
 
