@@ -81,6 +81,8 @@ def scenario(folder: ResultFolder) -> Section:
 
     r = folder.data
     items = [("scenario", r["scenario"]), ("seed", str(r["seed"])), ("method", r["method"]),
+             ("displacements measured from", "the mean of each test's scans" if r.get("reference") == "mean"
+              else "one unloaded and one loaded scan (the paper's)"),
              ("identification tests", str(r["n_tests"])), ("validation tests", str(len(r["validation"])))]  # fmt: skip
     if folder.dataset is not None:
         setup = read_setup(folder.dataset)
@@ -98,8 +100,6 @@ def scenario(folder: ResultFolder) -> Section:
                   f"{noise.range_std_m * 1e6:g} um per point, drift {noise.drift_translation_std_m * 1e6:g} um / "
                   f"{noise.drift_rotation_std_rad * 1e6:g} urad per scan, {noise.outlier_fraction * 100:g} % outliers"),
                  ("repeat scans per test (unloaded, loaded)", f"{sc.scanner.repeats}, {sc.scanner.loaded_repeats}"),
-                 ("displacements measured from", "the mean of each test's scans" if sc.reference == "mean"
-                  else "one unloaded and one loaded scan (the paper's)"),
                  ("F/T noise std [N, N*m]", ", ".join(f"{v:g}" for v in sc.force_sensor.noise_std)),
                  ("F/T bias [N, N*m]", ", ".join(f"{v:g}" for v in sc.force_sensor.bias)),
                  ("wire tension [N]", ", ".join(f"{v:g}" for v in sorted(set(sc.load.tensions)))),
