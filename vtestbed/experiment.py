@@ -190,23 +190,16 @@ def simulate(
                     timings.scan += test_timings.scan
                     if phys.clearance is not None:
                         phys.clearance.enforce(pose_field(group, i), "warn")
-                if todo:  # before the test's row: a resumed run finds the test finished only with them
-                    t2 = time.perf_counter()
-                    rep_rng = repeat_rng(scenario.seed, group, i)
-                    clouds = draw_repeat_scans(phys.hits_unloaded, noise, rep_rng, repeats, scenario.effects)
-                    timings.scan += time.perf_counter() - t2
-                    for k in todo:
-                        path = ply.write_ply(repeat_cloud_path(out, tid, k), clouds[k - 1])
-                        repeat_writer.append(RepeatRecord(tid, k, path))
-                    timings.write += time.perf_counter() - t2
+                # before the test's row: a resumed run finds the test finished only with them
+                if todo:
+                    rng = repeat_rng(scenario.seed, group, i)
+                    _write_repeats(
+                        out, repeat_writer, tid, todo, phys.hits_unloaded, rng, repeats, scenario, timings
+                    )
                 if loaded_todos[tid]:  # the loaded block scanned again, from its own stream
-                    t2 = time.perf_counter()
                     rng = loaded_repeat_rng(scenario.seed, group, i)
-                    clouds = draw_repeat_scans(phys.hits_loaded, noise, rng, loaded_repeats, scenario.effects)
-                    for k in loaded_todos[tid]:
-                        path = ply.write_ply(repeat_cloud_path(out, tid, k, "loaded"), clouds[k - 1])
-                        loaded_writer.append(RepeatRecord(tid, k, path))
-                    timings.write += time.perf_counter() - t2
+                    _write_repeats(out, loaded_writer, tid, loaded_todos[tid], phys.hits_loaded, rng,
+                                   loaded_repeats, scenario, timings, "loaded")  # fmt: skip
                 if tid not in writer.done or tid in lost:
                     rng = test_rng(scenario.seed, group, i)
                     s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
@@ -262,6 +255,31 @@ def simulate(
         if bar:
             bar.close()
     return out
+
+
+def _write_repeats(
+    out: Path,
+    writer,
+    tid: str,
+    todo: list[int],
+    hits,
+    rng,
+    repeats: int,
+    scenario: Scenario,
+    timings: Timings,
+    state: str = "unloaded",
+) -> None:
+    """Draw all ``repeats`` repeat scans of test ``tid``'s ``state`` block from its ``hits`` with
+    ``rng`` (consumed in order, so repeat k is the same on a resume) and write those numbered in
+    ``todo`` (1, 2, ...), each recorded in ``writer``'s file."""
+    t0 = time.perf_counter()
+    clouds = draw_repeat_scans(hits, scenario.scanner.noise_model, rng, repeats, scenario.effects)
+    t1 = time.perf_counter()
+    timings.scan += t1 - t0
+    for k in todo:
+        path = ply.write_ply(repeat_cloud_path(out, tid, k, state), clouds[k - 1])
+        writer.append(RepeatRecord(tid, k, path))
+    timings.write += time.perf_counter() - t1
 
 
 def _repeats_to_do(writer, tid: str, repeats: int) -> list[int]:

@@ -382,12 +382,12 @@ def repeat_frames(
 
     The repeats are drawn as ``simulate`` writes them (:func:`~vtestbed.world.repeats.repeat_rng`
     or ``loaded_repeat_rng`` of trial ``seed``) with the world's effects, and fitted by the
-    researcher's pipeline (:func:`~vtestbed.researcher.noise_floor.scan_frames`; a loaded repeat
-    from the loaded frame, as :func:`~vtestbed.researcher.scan_mean.loaded_scan_frames` does);
+    researcher's pipeline (:func:`~vtestbed.researcher.noise_floor.scan_frames`, loaded repeats
+    :func:`~vtestbed.researcher.scan_mean.loaded_repeat_frames`, as for a dataset);
     ``measurements`` are the trial's reduced tests (their frames are reused).
     """
-    from ..researcher.measure import fit_scan
     from ..researcher.noise_floor import scan_frames
+    from ..researcher.scan_mean import loaded_repeat_frames
     from ..world.repeats import draw_repeat_scans, loaded_repeat_rng, repeat_rng
 
     effects, setup = prepared.scenario.effects, prepared.setup
@@ -396,10 +396,8 @@ def repeat_frames(
         if state == "loaded":
             rng = loaded_repeat_rng(seed, t.group, t.index)
             clouds = draw_repeat_scans(t.hits_loaded, noise, rng, repeats, effects)
-            frames[t.test_id] = [m.frame_loaded] + [
-                fit_scan(c, m.frame_loaded, setup, f"test {t.test_id}, loaded repeat {k} cloud")
-                for k, c in enumerate(clouds, start=1)
-            ]
+            labels = [f"test {t.test_id}, loaded repeat {k} cloud" for k in range(1, repeats + 1)]
+            frames[t.test_id] = loaded_repeat_frames(m.frame_loaded, clouds, setup, labels)
             continue
         rng = repeat_rng(seed, t.group, t.index)
         clouds = draw_repeat_scans(t.hits_unloaded, noise, rng, repeats, effects)

@@ -70,6 +70,12 @@ __all__ = [
 ]
 
 
+def _scan_mean_scale(scans: int, loaded_scans: int) -> float:
+    """The single-scan floor's factor for a displacement from the mean of ``scans`` unloaded to the
+    mean of ``loaded_scans`` loaded scans: ``(1 / m + 1 / m') / 2`` (:meth:`NoiseFloor.for_scan_mean`)."""
+    return (1.0 / scans + 1.0 / loaded_scans) / 2.0
+
+
 @dataclass(frozen=True, eq=False)
 class NoiseFloor:
     """The displacement-noise covariance estimated from repeat scans (block frame, SI).
@@ -122,10 +128,9 @@ class NoiseFloor:
         for name, value in (("scans", scans), ("loaded_scans", loaded_scans)):
             if int(value) != value or value < 1:
                 raise OutOfRangeError(f"{name} = {value!r} must be an integer >= 1 (1: the test's own scan)")
-        scale = (1.0 / scans + 1.0 / loaded_scans) / 2.0
         return dataclasses.replace(
             self,
-            covariance=self.covariance * scale,
+            covariance=self.covariance * _scan_mean_scale(scans, loaded_scans),
             reference_scans=int(scans),
             loaded_scans=int(loaded_scans),
         )
@@ -218,7 +223,7 @@ class NoiseFloor:
             f"{self.n_tests} tests, each std +-{self.relative_std_uncertainty * 100:.0f} %)"
             + (
                 f"; displacements from the mean of {self.reference_scans} unloaded scans to the mean of "
-                f"{self.loaded_scans} loaded: covariance x {(1 / self.reference_scans + 1 / self.loaded_scans) / 2:.3g}"
+                f"{self.loaded_scans} loaded: covariance x {_scan_mean_scale(self.reference_scans, self.loaded_scans):.3g}"
                 if self.reference_scans > 1 or self.loaded_scans > 1
                 else ""
             )

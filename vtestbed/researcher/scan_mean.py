@@ -52,6 +52,7 @@ __all__ = [
     "against_scan_mean",
     "common_scan_count",
     "load_with_floor",
+    "loaded_repeat_frames",
     "loaded_scan_frames",
     "mean_frame",
 ]
@@ -120,29 +121,41 @@ def against_scan_mean(
     return out, floor.for_scan_mean(m, m_loaded)
 
 
+def loaded_repeat_frames(
+    frame_loaded: np.ndarray, clouds: Sequence[np.ndarray], setup: DatasetSetup, labels: Sequence[str]
+) -> list[np.ndarray]:
+    """The frames (4, 4) of a test's loaded scan (``frame_loaded``, the measurement's) and of each
+    loaded repeat (``clouds``, (N, 3) [m] in the scanner frame), each fitted from ``frame_loaded``
+    as the loaded scan is fitted from the unloaded one (:func:`.measure.measure_arrays`); ``labels``
+    name the repeats in errors. The dataset's and the campaign trial's loaded repeats both come
+    through here, as their unloaded repeats come through :func:`.noise_floor.scan_frames`."""
+    return [frame_loaded] + [fit_scan(c, frame_loaded, setup, label) for c, label in zip(clouds, labels)]
+
+
 def loaded_scan_frames(
     root: str | Path, measurements: Sequence[TestMeasurement]
 ) -> dict[str, list[np.ndarray]] | None:
     """Per test with loaded repeats, the frames (4, 4) of its loaded scan (the measurement's) and of
     each loaded repeat (scanner frame), or None when the dataset has no ``loaded_repeats.csv``.
 
-    Each repeat is fitted from the test's loaded frame, as the loaded scan is fitted from the
-    unloaded one (:func:`.measure.measure_arrays`). Errors name the test, the repeat and the file.
+    Each repeat is fitted by :func:`loaded_repeat_frames`. Errors name the test, the repeat and the file.
     """
     root = Path(root)
     repeats = read_repeats(root, state="loaded")
     if not repeats:
         return None
     setup = read_setup(root)
-    by_id = {m.test_id: m for m in measurements}
-    frames: dict[str, list[np.ndarray]] = {}
+    by_test: dict[str, list] = {}
     for rep in sorted(repeats, key=lambda r: r.repeat):
-        if rep.test_id not in by_id:
-            continue  # a test not measured here (read_repeats checked it is one of tests.csv)
-        start = by_id[rep.test_id].frame_loaded
-        label = f"test {rep.test_id}, loaded repeat {rep.repeat} cloud"
-        fitted = fit_scan(read_scan(rep.cloud, label), start, setup, f"{label} {rep.cloud}")
-        frames.setdefault(rep.test_id, [start]).append(fitted)
+        by_test.setdefault(rep.test_id, []).append(rep)
+    frames = {}
+    for m in measurements:  # a test not measured here is skipped (read_repeats checked its id)
+        reps = by_test.get(m.test_id, [])
+        if reps:
+            labels = [f"test {m.test_id}, loaded repeat {r.repeat} cloud" for r in reps]
+            clouds = [read_scan(r.cloud, label) for r, label in zip(reps, labels)]
+            named = [f"{label} {r.cloud}" for r, label in zip(reps, labels)]  # a fit's error names the file
+            frames[m.test_id] = loaded_repeat_frames(m.frame_loaded, clouds, setup, named)
     return frames
 
 
