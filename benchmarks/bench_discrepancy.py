@@ -244,7 +244,8 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     base = fit_model(ctx, white, [])
     chosen, steps, final = name_effects(ctx, white, pool, alpha=ALPHA, rank_by=RANK)
     before = validation_gap(ctx_val, white, base, [])["ratio_to_floor"]
-    after = validation_gap(ctx_val, white, final, chosen)["ratio_to_floor"]
+    gap_after = validation_gap(ctx_val, white, final, chosen)
+    after = gap_after["ratio_to_floor"]
     t3 = time.perf_counter()
     return {
         "seed": seed,
@@ -260,6 +261,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
         ],  # fmt: skip
         "val_before": before,
         "val_after": after,
+        "val_expected_after": gap_after["expected_ratio"],  # a correct model with the named terms
         "runner_up": steps[0].runner_up,
         "delta": steps[0].delta,
         "delta_bic": steps[0].delta_bic,
@@ -509,8 +511,9 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
 
     print("\n## Per world: scoring, detection, validation gap\n")
     print("| world | correct | exact label | theory | detected (p<0.01) | median p "
-          "| val. gap before | after | excess removed | id. fit before | after |")  # fmt: skip
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+          "| val. gap before | after | excess removed | correct model | removed of reachable "
+          "| id. fit before | after |")  # fmt: skip
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     summary = {}
     for name, size, factor in worlds:
         key = world_key(name, size)
@@ -526,18 +529,29 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         vb = np.median([r["val_before"] for r in rs])
         va = np.median([r["val_after"] for r in rs])
         excess = f"{(vb - va) / (vb - 1) * 100:.0f} %" if vb - 1 > 0.05 else "n/a"
+        ea = np.median([r.get("val_expected_after", np.nan) for r in rs])
+        reachable = f"{(vb - va) / (vb - ea) * 100:.0f} %" if vb - ea > 0.05 else "n/a"
         fb, fa = np.median([r["fit_before"] for r in rs]), np.median([r["fit_after"] for r in rs])
-        summary[key] = {"accuracy": acc, "detected": det, "val_before": vb, "val_after": va}
+        summary[key] = {
+            "accuracy": acc,
+            "detected": det,
+            "val_before": vb,
+            "val_after": va,
+            "val_expected_after": ea,
+        }
         acc_s = "not scored" if acc is None else f"{acc * 100:.0f} %"
         print(f"| {key} | {acc_s} | {exact} | {theory_power(cal, name, size)} | {det * 100:.0f} % "
               f"| {fmt_p(np.median([r['p_detect'] for r in rs]))} | {vb:.2f} | {va:.2f} | {excess} "
-              f"| {fb:.2f} | {fa:.2f} |")  # fmt: skip
+              f"| {ea:.2f} | {reachable} | {fb:.2f} | {fa:.2f} |")  # fmt: skip
     print("\ntheory: the power of the naming test of the effect's own candidate (detection test without a "
           "candidate) for the noise-free effect against the trials' estimated floor (lr_power; 'floor known' where "
           "it is the chi^2 power), an upper bound that ignores the competition between candidates; clean: the "
           "family-wise level. Validation gap: RMS whitened prediction "
           "error of the 5 validation tests over the noise floor, median over the seeds; excess removed = "
-          "(before - after) / (before - 1) of the medians.")  # fmt: skip
+          "(before - after) / (before - 1) of the medians. Correct model: the ratio a correct model with the "
+          "named terms reaches on average, sqrt(1 + mean leverage) (validation noise plus its parameters' "
+          "estimation error; diagnose.expected_validation_ratio); removed of reachable = (before - after) / "
+          "(before - correct model).")  # fmt: skip
 
     print("\n## Labels named (all rounds, counts over the seeds)\n")
     for name, size, _ in worlds:

@@ -203,6 +203,14 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_diagn
         rms = np.sqrt(np.mean(np.square(val[side]["per_test"])))
         assert summary[key] == pytest.approx(rms, rel=1e-12)
     assert validation_summary({"validation": {}}) is None  # a dataset without validation tests
+    # what a correct model reaches (tests/test_validation_expected.py): more parameters, higher
+    assert 1.0 < val["before"]["expected_ratio"] < val["after"]["expected_ratio"] < 1.6
+    reached = re.search(
+        r"A correct model reaches ([\d.]+) .* and ([\d.]+) ", (folder / "report.md").read_text()
+    )
+    assert [float(g) for g in reached.groups()] == pytest.approx(
+        [val["before"]["expected_ratio"], val["after"]["expected_ratio"]], abs=0.006
+    )
     for name in ("report.json", "report.md", "gap.png", "patterns.png", "effect.png", "model.json"):
         assert (folder / name).stat().st_size > 100
     # the named effect's figure: what the terms explain is the drop of chi^2, and it is most of it
@@ -281,7 +289,7 @@ def test_too_few_tests_for_a_candidate_and_too_few_repeat_samples_are_named(tmp_
         Whitener(NoiseFloor(np.zeros((6, 6)), n_samples=3, n_tests=2))
 
 
-def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, hidden_diagnosis, tmp_path):
+def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, hidden_diagnosis, tmp_path, capsys):
     from vtestbed.errors import DatasetError
     from vtestbed.researcher.model_file import identify_with_model
 
@@ -292,7 +300,11 @@ def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, hidden_diagn
     np.testing.assert_allclose(
         result["model"]["stiffness_Nm_per_rad"], report["model"]["stiffness_Nm_per_rad"], rtol=1e-9
     )
-    assert cli.main(["identify", str(hidden_dataset), "--model", str(model), "--quiet", "--no-truth"]) == 0
+    for key in ("ratio_to_floor", "expected_ratio"):  # its validation too
+        assert result["validation"][key] == pytest.approx(report["validation"]["after"][key], rel=1e-9)
+    assert cli.main(["identify", str(hidden_dataset), "--model", str(model), "--no-truth"]) == 0
+    assert re.search(r"validation prediction error / noise floor: [\d.]+ \(a correct model reaches ([\d.]+)",
+                     capsys.readouterr().out).group(1) == f"{report['validation']['after']['expected_ratio']:.2f}"  # fmt: skip
     bad = tmp_path / "bad.json"
     bad.write_text(model.read_text().replace("link_compliance(link 2)", "link_compliance(link 9)"))
     with pytest.raises(DatasetError, match=r"terms: unknown term 'link_compliance\(link 9\)'; valid terms: "):

@@ -56,7 +56,9 @@ def _identify_with_model(args) -> int:
         stds = model["parameters_std"][label]
         print(f"{label}: " + ", ".join(f"{p} = {v:.4g} +- {stds[p]:.2g}" for p, v in params.items()))
     if out["validation"]:
-        print(f"validation prediction error / noise floor: {out['validation']['ratio_to_floor']:.2f}")
+        val = out["validation"]
+        print(f"validation prediction error / noise floor: {val['ratio_to_floor']:.2f} "
+              f"(a correct model reaches {val['expected_ratio']:.2f} on average)")  # fmt: skip
     return 0
 
 

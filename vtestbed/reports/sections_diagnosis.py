@@ -102,6 +102,9 @@ def gap(folder: ResultFolder) -> Section:
     if val["before"]:
         rows.append(["validation prediction error / floor", Num(val["before"]["ratio_to_floor"], ".3f"),
                      Num(val["after"]["ratio_to_floor"], ".3f")])  # fmt: skip
+        if "expected_ratio" in val["before"]:  # older reports lack it
+            rows.append(["a correct model's validation error / floor (mean)", Num(val["before"]["expected_ratio"], ".3f"),
+                         Num(val["after"]["expected_ratio"], ".3f")])  # fmt: skip
     parts = [Table(["", "before", "after"], rows, id="gap-table"),
              Figure(figures.gap(r), "Per-test RMS whitened residual before and after the named terms", "fig-gap")]  # fmt: skip
     effect = figures.effect(r)

@@ -309,8 +309,17 @@ def markdown(report: dict, joint_names) -> str:
     ]
     if val["before"]:
         lines.append(f"Validation prediction error / noise floor: {val['before']['ratio_to_floor']:.2f} before, "
-                     f"{val['after']['ratio_to_floor']:.2f} after.")  # fmt: skip
+                     f"{val['after']['ratio_to_floor']:.2f} after.{_reachable(val)}")  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def _reachable(val: dict) -> str:
+    """What a correct model reaches on the validation tests (noise plus estimation error), if known."""
+    before, after = val["before"].get("expected_ratio"), val["after"].get("expected_ratio")
+    if before is None or after is None:  # a report written before the expected ratio existed
+        return ""
+    return (f" A correct model reaches {before:.2f} (the baseline's terms) and {after:.2f} (with the named "
+            "terms) on average: the validation scans' noise plus the parameters' estimation error.")  # fmt: skip
 
 
 def plot_gap(report: dict, path: Path) -> Path:
