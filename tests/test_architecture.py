@@ -118,6 +118,7 @@ def test_the_dataset_format_never_reaches_the_world():
         "vtestbed.dataset_repeats",
         "vtestbed.ply",
         "vtestbed.lab_import",
+        "vtestbed.lab_manifest",
         "vtestbed.ft_stream",
     ):
         bad = forbidden_reach(module)

@@ -114,6 +114,22 @@ def given(name: str, text: str, *argv):
     return case
 
 
+# a manifest whose test lists its own unloaded scan as a repeat (refused before any file is read)
+REPEAT_OWN_SCAN = """setup = "setup.json"
+[units]
+cloud = "mm"
+[[tests]]
+id = "T001"
+group = "identification"
+q_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]
+scanner_position_m = [0.3, 0.5, 0.8]
+scanner_rotvec_rad = [0.0, 0.0, 0.0]
+ft_unloaded = "u.csv"
+ft_loaded = "l.csv"
+cloud_unloaded = "u.pcd"
+cloud_loaded = "l.pcd"
+repeat_clouds = ["r1.pcd", "u.pcd"]
+"""
 ONE_LINK = '<robot name="x"><link name="a"/></robot>'
 TWICE = [{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 2}]
 
@@ -190,6 +206,9 @@ CASES = {
         "lab.toml", "robot = 5\n", "dataset", "import", "{file}", "--out", "{tmp}/o"
     ),
     "manifest-missing": given("lab.toml", "", "dataset", "import", "{tmp}/none.toml", "--out", "{tmp}/o"),
+    "manifest-repeat-own-scan": given(
+        "lab.toml", REPEAT_OWN_SCAN, "dataset", "import", "{file}", "--out", "{tmp}/o"
+    ),
     "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
     "diagnose-candidate-twice": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"

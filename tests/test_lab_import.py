@@ -21,6 +21,7 @@ from test_architecture import forbidden_reach
 from vtestbed import ft_stream
 from vtestbed.cli.main import main
 from vtestbed.dataset import read_tests
+from vtestbed.dataset_repeats import read_repeats
 from vtestbed.experiment import identify_dataset, simulate
 from vtestbed.lab_import import ImportOptions, import_dataset, read_cloud
 from vtestbed.ply import read_ply
@@ -67,7 +68,8 @@ def write_pcd(path, points):
 
 def write_lab(sim_root, lab, rng, centred=True, torque_unit="Nmm", window=WINDOW_S):
     """A lab's raw files from a simulated dataset: streams (mean = the recorded reading) and clouds
-    (unloaded PCD, loaded XYZ, both mm), and the manifest. Returns (manifest, {(id, state): (t, w)})."""
+    (unloaded PCD, loaded XYZ, both mm; repeat scans likewise), and the manifest. Returns
+    (manifest, {(id, state): (t, w)})."""
     (lab / "ft").mkdir(parents=True)
     (lab / "scans").mkdir()
     (lab / "setup.json").write_text((sim_root / "setup.json").read_text())
@@ -78,13 +80,25 @@ def write_lab(sim_root, lab, rng, centred=True, torque_unit="Nmm", window=WINDOW
             write_stream(lab / "ft" / f"{r.test_id}_{state}.csv", *streams[r.test_id, state], torque_unit)
         write_pcd(lab / "scans" / f"{r.test_id}_u.pcd", read_ply(r.cloud_unloaded) * 1e3)
         np.savetxt(lab / "scans" / f"{r.test_id}_l.xyz", read_ply(r.cloud_loaded) * 1e3, fmt="%.17g")
+        lists = ""
+        for state, ext in (("unloaded", "pcd"), ("loaded", "xyz")):
+            names = []
+            for rep in (x for x in read_repeats(sim_root, state=state) if x.test_id == r.test_id):
+                names.append(f"scans/{r.test_id}_{state[0]}_r{rep.repeat}.{ext}")
+                points = read_ply(rep.cloud) * 1e3
+                if ext == "pcd":
+                    write_pcd(lab / names[-1], points)
+                else:
+                    np.savetxt(lab / names[-1], points, fmt="%.17g")
+            if names:
+                lists += f"{'' if state == 'unloaded' else 'loaded_'}repeat_clouds = {json.dumps(names)}\n"
         pose = r.scanner_pose
         tests.append(
             f'[[tests]]\nid = "{r.test_id}"\ngroup = "{r.group}"\nq_deg = {json.dumps(r.q_deg.tolist())}\n'
             f"scanner_position_m = {json.dumps(pose[:3, 3].tolist())}\n"
             f"scanner_rotvec_rad = {json.dumps(rotation_vector(pose[:3, :3]).tolist())}\n"
             f'ft_unloaded = "ft/{r.test_id}_unloaded.csv"\nft_loaded = "ft/{r.test_id}_loaded.csv"\n'
-            f'cloud_unloaded = "scans/{r.test_id}_u.pcd"\ncloud_loaded = "scans/{r.test_id}_l.xyz"\n'
+            f'cloud_unloaded = "scans/{r.test_id}_u.pcd"\ncloud_loaded = "scans/{r.test_id}_l.xyz"\n{lists}'
         )
     ft = f"window_s = {list(window)}\n" if window else "window_length_s = 1.0\n"
     manifest = lab / "manifest.toml"
@@ -96,9 +110,11 @@ def write_lab(sim_root, lab, rng, centred=True, torque_unit="Nmm", window=WINDOW
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
     """A small simulated dataset (6 identification tests and 1 validation test of the paper scenario,
-    seed 5) and its identification (the reference)."""
+    seed 5; 2 repeat scans of the unloaded block and 1 of the loaded block per test) and its
+    identification (the reference)."""
     root = tmp_path_factory.mktemp("sim") / "dataset"
-    simulate(parse_scenario(paper_scenario_data(6, 1, "lab_import", 5), "lab_import.toml"), root)
+    data = paper_scenario_data(6, 1, "lab_import", 5, repeats=2, loaded_repeats=1)
+    simulate(parse_scenario(data, "lab_import.toml"), root)
     return root, identify_dataset(root)[2]
 
 
@@ -124,6 +140,34 @@ def test_a_dataset_imported_from_raw_files_identifies_exactly_like_the_simulated
     print("relative stiffness difference per joint:", rel)
     assert rel.max() < 1e-9  # the fitting is smooth in the data: round-off in, round-off out
     assert np.allclose(result.stiffness_std, reference.stiffness_std, rtol=1e-6)
+
+
+def test_repeat_scans_import_and_diagnose_like_the_simulated_ones(simulated, tmp_path):
+    """The manifest's repeat_clouds and loaded_repeat_clouds: the imported dataset's repeats are
+    the simulation's scans (mm text back to m), and the researcher's noise floor and displacements
+    against the mean scans (what diagnose tests) equal the simulated dataset's to round-off."""
+    from vtestbed.researcher.scan_mean import load_with_floor
+
+    sim_root, _ = simulated
+    manifest, _ = write_lab(sim_root, tmp_path / "lab", np.random.default_rng(3))
+    out = import_dataset(manifest, tmp_path / "imported").root
+    for state, count in (("unloaded", 2), ("loaded", 1)):
+        sim, imp = read_repeats(sim_root, state=state), read_repeats(out, state=state)
+        assert [(r.test_id, r.repeat) for r in imp] == [(r.test_id, r.repeat) for r in sim]
+        assert len(imp) == 7 * count
+        for a, b in zip(sim, imp):
+            assert np.abs(read_ply(a.cloud) - read_ply(b.cloud)).max() < 1e-15
+    (_, ms_sim, floor_sim), (_, ms_imp, floor_imp) = load_with_floor(sim_root), load_with_floor(out)
+    assert (floor_imp.n_samples, floor_imp.reference_scans, floor_imp.loaded_scans) == (14, 3, 2)
+    assert np.allclose(floor_imp.covariance, floor_sim.covariance, rtol=1e-9, atol=0)
+    for a, b in zip(ms_sim, ms_imp):
+        assert a.test_id == b.test_id and np.abs(a.displacement - b.displacement).max() < 1e-12
+    # the lists are optional: without them no repeats file is written, and the same tests are read
+    text = manifest.read_text()
+    manifest.write_text("\n".join(line for line in text.splitlines() if "repeat_clouds" not in line))
+    bare = import_dataset(manifest, tmp_path / "bare").root
+    assert sorted(p.name for p in bare.iterdir()) == ["clouds", "ft_windows.csv", "setup.json", "tests.csv"]
+    assert len(list((bare / "clouds").iterdir())) == 14 and read_repeats(bare) == []
 
 
 def test_averaging_noise_moves_the_stiffness_as_the_readings_it_moves(simulated, tmp_path):
@@ -324,6 +368,22 @@ CASES = {
         lambda lab: _replace(lab / "manifest.toml", 'ft_loaded = "ft/T001_loaded.csv"\n', ""),
         [],
         ["manifest.toml", "tests[0].ft_loaded: is missing"],
+    ),
+    "repeat scan listed as the test's own": (
+        lambda lab: _replace(lab / "manifest.toml", '"scans/T001_u_r1.pcd"', '"scans/T001_u.pcd"'),
+        [],
+        ["manifest.toml", "tests[0].repeat_clouds[0]", "is already tests[0].cloud_unloaded", "noise floor too small"],
+    ),
+    "repeat scans not a list": (
+        lambda lab: _replace(lab / "manifest.toml", 'loaded_repeat_clouds = ["scans/T002_l_r1.xyz"]',
+                             'loaded_repeat_clouds = "scans/T002_l_r1.xyz"'),
+        [],
+        ["manifest.toml", "tests[1].loaded_repeat_clouds: must be a list of 0 to 20 cloud files"],
+    ),
+    "repeat scan missing": (
+        lambda lab: (lab / "scans" / "T003_u_r2.pcd").unlink(),
+        [],
+        ["point cloud file", "T003_u_r2.pcd is missing"],
     ),
     "test id names files": (
         lambda lab: _replace(lab / "manifest.toml", 'id = "T001"', 'id = "../T001"'),

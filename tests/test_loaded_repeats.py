@@ -148,3 +148,30 @@ def test_resume_redoes_only_the_missing_loaded_repeats(loaded_dataset, tmp_path)
     assert {n: (tmp_path / n).read_text() for n in names} == reference
     for a, b in zip(read_repeats(tmp_path, state="loaded"), read_repeats(ref, state="loaded")):
         assert (a.test_id, a.repeat) == (b.test_id, b.repeat) and a.cloud.read_bytes() == b.cloud.read_bytes()
+
+
+def test_a_discover_round_carries_the_loaded_repeats_as_a_fresh_simulation(loaded_dataset, tmp_path):
+    """discover extends the dataset (``discovery._extend_dataset``: every file copied, clouds linked)
+    and simulates the combined scenario there. With loaded repeats the result holds the same scans
+    as a fresh simulation of the combined scenario: the first tests' from the copy, the added
+    test's drawn anew (file order aside: the copy lists the validation test before it)."""
+    from vtestbed.discovery import _extend_dataset
+
+    _, root = loaded_dataset
+    combined = parse_scenario(
+        paper_scenario_data(4, 1, "loadedrep", 9, repeats=2, loaded_repeats=2), "c.toml"
+    )
+    extended = tmp_path / "extended"
+    _extend_dataset(root, extended, combined)
+    assert (extended / LOADED_REPEATS_FILE).read_text() == (root / LOADED_REPEATS_FILE).read_text()
+    simulate(combined, extended)
+    fresh = simulate(combined, tmp_path / "fresh")
+    for name in ("tests.csv", REPEATS_FILE, LOADED_REPEATS_FILE):
+        lines = [sorted((d / name).read_text().splitlines()) for d in (extended, fresh)]
+        assert lines[0] == lines[1], name
+    for state in ("unloaded", "loaded"):
+        ext, new = read_repeats(extended, state=state), read_repeats(fresh, state=state)
+        assert len(ext) == len(new) == 10  # 5 tests, 2 repeats each
+        by_key = {(r.test_id, r.repeat): r.cloud for r in new}
+        for r in ext:
+            assert r.cloud.read_bytes() == by_key[r.test_id, r.repeat].read_bytes()

@@ -30,6 +30,7 @@ __all__ = [
     "REPEATS_FILE",
     "REPEAT_COLUMNS",
     "REPEAT_FILES",
+    "REPEATS_RANGE",
     "LoadedRepeatWriter",
     "RepeatRecord",
     "RepeatWriter",
@@ -41,6 +42,9 @@ REPEATS_FILE = "repeats.csv"
 LOADED_REPEATS_FILE = "loaded_repeats.csv"
 REPEAT_FILES = {"unloaded": REPEATS_FILE, "loaded": LOADED_REPEATS_FILE}  # block state -> file
 REPEAT_COLUMNS = ["test_id", "repeat", "cloud"]
+# further scans per test and block state, simulated ([scanner] repeats, loaded_repeats) or imported
+# (a manifest's repeat_clouds, loaded_repeat_clouds); 0: none, 2 or more recommended for a floor
+REPEATS_RANGE = (0, 20)
 _CLOUD_SUFFIX = {"unloaded": "repeat", "loaded": "loaded_repeat"}
 
 

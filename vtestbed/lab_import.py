@@ -1,10 +1,12 @@
 """A lab's raw files (F/T streams in CSV, point clouds in PLY, PCD or XYZ) turned into a dataset.
 
-A small TOML manifest lists, per test, the commanded pose, the scanner's rough pose, the two F/T
-stream files (one per state: unloaded, loaded) and the two cloud files; :func:`import_dataset`
-reduces each stream to its static reading (:mod:`vtestbed.ft_stream`) and converts each cloud
-to the dataset's format (``clouds/<id>_<state>.ply``, binary, metres), then writes setup.json
-and tests.csv, so the dataset reads and identifies like a simulated one. ``ft_windows.csv``
+A small TOML manifest (:mod:`vtestbed.lab_manifest`) lists, per test, the commanded pose, the
+scanner's rough pose, the two F/T stream files (one per state: unloaded, loaded), the two cloud
+files and, optionally, further scans of either block; :func:`import_dataset` reduces each stream
+to its static reading (:mod:`vtestbed.ft_stream`) and converts each cloud to the dataset's format
+(``clouds/<id>_<state>.ply``, ``clouds/<id>_repeat<k>.ply``, ``clouds/<id>_loaded_repeat<k>.ply``;
+binary, metres), then writes setup.json, tests.csv and the repeats files, so the dataset reads,
+identifies and diagnoses like a simulated one. ``ft_windows.csv``
 records, per stream, the window, its length in samples and per axis the mean, std, standard
 error and autocorrelation time (identification does not read it). docs/lab_data.md has the
 manifest's fields.
@@ -18,7 +20,7 @@ stored in m. Paths in the manifest are relative to the manifest's folder.
 from __future__ import annotations
 
 import csv
-import re
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,76 +29,32 @@ import numpy as np
 from . import ft_stream
 from .dataset import (
     CLOUD_DIR,
-    GROUPS,
     TESTS_FILE,
     DatasetSetup,
     TestRecord,
     TestWriter,
-    parse_setup,
     read_setup,
     read_tests,
     write_setup,
 )
-from .dataset_checks import BLOCK_EDGE_RANGE_M, SCANNER_POSITION_RANGE_M, SCANNER_ROTVEC_RANGE_RAD
+from .dataset_checks import BLOCK_EDGE_RANGE_M
+from .dataset_repeats import (
+    LoadedRepeatWriter,
+    RepeatRecord,
+    RepeatWriter,
+    read_repeats,
+    repeat_cloud_path,
+)
 from .errors import DatasetError, VtestbedError
-from .files import read_json, read_toml
+from .lab_manifest import CLOUD_UNITS, DEFAULT_OPTIONS, REPEAT_KEYS, STATES, ImportOptions, read_manifest
 from .output_folders import require_own_kind
 from .ply import MAX_CLOUD_COORDINATE_M, read_ply, write_ply
-from .robots import load_robot
-from .schema import Fields
-from .transforms import homogeneous, matrix_from_rotation_vector
 
-CLOUD_UNITS = ("m", "mm")
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz")
-STATES = ("unloaded", "loaded")
 WINDOWS_FILE = "ft_windows.csv"
 MIN_CLOUD_EXTENT_M = 0.5 * BLOCK_EDGE_RANGE_M[0]  # smaller than any block: m read as mm
-TOP_KEYS = ("setup", "units", "ft", "tests")
-TEST_KEYS = (
-    "id",
-    "group",
-    "q_deg",
-    "scanner_position_m",
-    "scanner_rotvec_rad",
-    *(f"ft_{s}" for s in STATES),
-    *(f"cloud_{s}" for s in STATES),
-    *(f"window_{s}_s" for s in STATES),
-)
+REPEAT_WRITERS = {"unloaded": RepeatWriter, "loaded": LoadedRepeatWriter}
 _AXIS_UNITS = ("N", "N", "N", "Nm", "Nm", "Nm")
-_ID = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
-
-
-class _ManifestFields(Fields):
-    """The scenario validators, raising DatasetError (a manifest describes a dataset)."""
-
-    def error(self, field_name: str, message: str) -> DatasetError:
-        return DatasetError(f"{self.source}: {field_name}: {message}")
-
-
-@dataclass(frozen=True)
-class ImportOptions:
-    """Choices that override the manifest's ``[units]`` and ``[ft]`` tables (None: the manifest's).
-
-    Attributes
-    ----------
-    cloud_units : {'m', 'mm'} or None
-        Length unit of every cloud file.
-    torque_units : {'Nm', 'Nmm'} or None
-        Unit of the streams' torque columns.
-    window : (float, float) or None
-        Static window [s] of every stream without its own ``window_<state>_s``.
-    window_length : float or None
-        Length [s] of the automatic (quietest) window.
-    settle_z : float
-        The settle check's threshold: half-window means this many standard errors apart are a
-        stream that has not settled (:func:`vtestbed.ft_stream.settle_check`).
-    """
-
-    cloud_units: str | None = None
-    torque_units: str | None = None
-    window: tuple[float, float] | None = None
-    window_length: float | None = None
-    settle_z: float = ft_stream.SETTLE_Z
 
 
 @dataclass(frozen=True)
@@ -177,105 +135,16 @@ def _read_open3d(path: Path, ext: str) -> np.ndarray:
     return points
 
 
-# ---------------------------------------------------------------------- manifest
-def _window(f: Fields, value, field: str) -> tuple[float, float]:
-    start, end = f.vector(value, field, 2, -1e9, 1e9)
-    if not start < end:
-        raise f.error(field, f"must be [start, end] in s with start < end, got {value!r}")
-    return start, end
-
-
-def _path(f: Fields, base: Path, value, field: str) -> Path:
-    text = f.string(value, field, allow_empty=False)
-    return base / text
-
-
-def _setup(f: Fields, base: Path, value) -> DatasetSetup:
-    if isinstance(value, str):
-        path = _path(f, base, value, "setup")
-        return parse_setup(read_json(path, "dataset setup file", DatasetError), path)
-    return parse_setup(f.table(value, "setup"), f"{f.source}: [setup]")
-
-
-def _test(f: Fields, base: Path, value, i: int, window) -> dict:
-    where = f"tests[{i}]"
-    t = f.table(value, where, TEST_KEYS)
-    for key in TEST_KEYS:
-        if key not in t and not key.startswith("window_"):
-            raise f.error(f"{where}.{key}", "is missing")
-    tid = f.string(t["id"], f"{where}.id", allow_empty=False)
-    if not _ID.fullmatch(tid):
-        raise f.error(f"{where}.id", f"{tid!r} must be letters, digits, '_', '-', '.' (it names cloud files)")
-    rotvec = np.array(
-        f.vector(t["scanner_rotvec_rad"], f"{where}.scanner_rotvec_rad", 3, *SCANNER_ROTVEC_RANGE_RAD)
-    )
-    position = np.array(
-        f.vector(t["scanner_position_m"], f"{where}.scanner_position_m", 3, *SCANNER_POSITION_RANGE_M)
-    )
-    out = {
-        "id": tid,
-        "group": f.choice(t["group"], f"{where}.group", GROUPS),
-        "q_deg": np.array(f.vector(t["q_deg"], f"{where}.q_deg", 6, -720.0, 720.0)),
-        "scanner": homogeneous(matrix_from_rotation_vector(rotvec), position),
-    }
-    for s in STATES:
-        out[f"ft_{s}"] = _path(f, base, t[f"ft_{s}"], f"{where}.ft_{s}")
-        out[f"cloud_{s}"] = _path(f, base, t[f"cloud_{s}"], f"{where}.cloud_{s}")
-        key = f"window_{s}_s"
-        out[key] = _window(f, t[key], f"{where}.{key}") if key in t else window
-    return out
-
-
-def read_manifest(path: str | Path, options: ImportOptions = ImportOptions()) -> dict:
-    """The manifest checked field by field, options applied (see docs/lab_data.md).
-
-    Returns ``{"setup": DatasetSetup, "cloud_units", "torque_units", "window_length", "tests":
-    [dict per test]}``; raises a DatasetError naming the file and the field.
-    """
-    path = Path(path)
-    data = read_toml(path, "lab manifest", DatasetError)
-    f = _ManifestFields(path)
-    f.table(data, "", TOP_KEYS)
-    base = path.parent
-    if "setup" not in data:
-        raise f.error("setup", 'is missing: a setup.json path (setup = "setup.json") or a [setup] table')
-    units = f.table(data.get("units", {}), "units", ("cloud", "torque"))
-    ft = f.table(data.get("ft", {}), "ft", ("window_s", "window_length_s"))
-    cloud_units = options.cloud_units or units.get("cloud")
-    if cloud_units is None:
-        raise f.error("units.cloud", "is missing: the clouds' unit, 'm' or 'mm' (or --cloud-units m|mm)")
-    cloud_units = f.choice(cloud_units, "units.cloud (or --cloud-units)", CLOUD_UNITS)
-    torque = f.choice(
-        options.torque_units or units.get("torque", "Nm"), "units.torque", tuple(ft_stream.TORQUE_UNITS)
-    )
-    window = options.window or (_window(f, ft["window_s"], "ft.window_s") if "window_s" in ft else None)
-    length = options.window_length or f.number(
-        ft.get("window_length_s", ft_stream.DEFAULT_WINDOW_LENGTH_S), "ft.window_length_s", 1e-3, 1e4
-    )
-    tests = data.get("tests")
-    if not isinstance(tests, list) or not tests:
-        raise f.error("tests", "must list at least one test ([[tests]] tables)")
-    parsed = [_test(f, base, t, i, window) for i, t in enumerate(tests)]
-    ids = [t["id"] for t in parsed]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise f.error("tests", f"duplicate ids {dup}")
-    setup = _setup(f, base, data["setup"])
-    load_robot(setup.robot)  # a known robot, or the valid names
-    return {"setup": setup, "cloud_units": cloud_units, "torque_units": torque, "window_length": length,
-            "tests": parsed}  # fmt: skip
-
-
 # ---------------------------------------------------------------------- import
 def import_dataset(
-    manifest: str | Path, out: str | Path, options: ImportOptions = ImportOptions()
+    manifest: str | Path, out: str | Path, options: ImportOptions = DEFAULT_OPTIONS
 ) -> ImportResult:
     """Build a dataset folder (setup.json, tests.csv, clouds/, ft_windows.csv) from a lab's files.
 
     Parameters
     ----------
     manifest : str or Path
-        The TOML manifest (docs/lab_data.md).
+        The TOML manifest (docs/lab_data.md, :func:`vtestbed.lab_manifest.read_manifest`).
     out : str or Path
         The dataset folder; it must not hold a tests.csv yet.
     options : ImportOptions
@@ -291,8 +160,9 @@ def import_dataset(
     DatasetError
         Naming the file and the field or column: a manifest field, a stream (missing column,
         non-numeric value, window outside the stream, never settles), a cloud (unknown
-        extension, empty, wrong unit), a reading beyond the sensor's range. Nothing is written
-        before every file has been read.
+        extension, empty, wrong unit, listed twice), a reading beyond the sensor's range. Nothing
+        is written before every file has been read (the clouds are held in memory until then,
+        about 1.4 MB per scan of the simulated scanner's density).
     """
     spec = read_manifest(manifest, options)
     setup: DatasetSetup = spec["setup"]
@@ -312,9 +182,19 @@ def import_dataset(
                 raise DatasetError(str(exc)) from None
             readings[t["id"], s] = r
             clouds[t["id"], s] = read_cloud(t[f"cloud_{s}"], spec["cloud_units"])
+            for k, path in enumerate(t[REPEAT_KEYS[s]], start=1):
+                clouds[t["id"], s, k] = read_cloud(path, spec["cloud_units"])
     write_setup(out, setup)
-    with TestWriter(out) as writer:
+    states = [s for s in STATES if any(t[REPEAT_KEYS[s]] for t in spec["tests"])]
+    with ExitStack() as files:
+        writer = files.enter_context(TestWriter(out))
+        # repeats files only for the states the lab scanned again
+        repeat_writers = {s: files.enter_context(REPEAT_WRITERS[s](out)) for s in states}
         for t in spec["tests"]:
+            for s, repeats in repeat_writers.items():  # before the test's row, as a simulation
+                for k in range(1, len(t[REPEAT_KEYS[s]]) + 1):
+                    path = write_ply(repeat_cloud_path(out, t["id"], k, s), clouds[t["id"], s, k])
+                    repeats.append(RepeatRecord(t["id"], k, path))
             paths = []
             for s in STATES:
                 paths.append(write_ply(out / CLOUD_DIR / f"{t['id']}_{s}.ply", clouds[t["id"], s]))
@@ -323,6 +203,8 @@ def import_dataset(
             writer.append(record)
     _write_windows(out / WINDOWS_FILE, spec["tests"], readings)
     read_setup(out)
+    for s in states:
+        read_repeats(out, state=s)  # the dataset's own checks on what was written
     return ImportResult(out, read_tests(out, sensor_range=setup.sensor_range), readings)
 
 

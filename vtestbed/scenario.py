@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .dataset_repeats import REPEATS_RANGE
 from .errors import OutOfRangeError, ScenarioError, VtestbedError
 from .files import read_toml
 from .lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, parse_lab
@@ -39,7 +40,6 @@ DEFAULT_REFERENCE = "scan"  # the paper's: the test's own unloaded scan
 DEFAULT_HOOK, DEFAULT_ANCHOR = "hook_x", "ring_5"
 POINT_SPACING_RANGE_M = (2e-5, 5e-3)
 FT_NOISE_STD_MAX, FT_BIAS_MAX = 50.0, 100.0  # N (N*m)
-REPEATS_RANGE = (0, 20)  # repeat scans of the unloaded block per test (0: none; 2 or more recommended)
 TOP_LEVEL = (
     "name",
     "description",

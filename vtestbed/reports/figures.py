@@ -125,14 +125,14 @@ def campaign(trials, manifest: dict) -> tuple[dict, object, dict]:
 
 def gap(report: dict) -> str:
     """Per-test residual before and after the named terms (``vtestbed diagnose``'s gap.png)."""
-    from ..researcher.discrepancy import plot_gap
+    from ..researcher.discrepancy_plots import plot_gap
 
     return drawn(lambda p: plot_gap(report, p))
 
 
 def patterns(report: dict) -> str | None:
     """The per-test residual against the pose features (None if no feature varies)."""
-    from ..researcher.discrepancy import plot_patterns
+    from ..researcher.discrepancy_plots import plot_patterns
 
     if not any(v["rho"] is not None for v in report["detect"]["patterns"].values()):
         return None
@@ -142,7 +142,7 @@ def patterns(report: dict) -> str | None:
 def effect(report: dict) -> str | None:
     """The baseline's residual against what the named terms explain (``effect.png``); None for a
     report written before it existed or when nothing was named."""
-    from ..researcher.discrepancy import plot_effect
+    from ..researcher.discrepancy_plots import plot_effect
 
     if not report.get("effect", {}).get("terms"):
         return None

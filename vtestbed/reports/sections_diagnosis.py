@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from ..researcher.diagnose import confusable_margin, rank_label
 from ..researcher.discrepancy import COMPONENTS, detection_alone, no_candidates_text, stand_ins
+from ..researcher.loaded_scatter import LoadedScatter
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
 from .loader import ResultFolder
@@ -25,7 +26,11 @@ def noise_floor(folder: ResultFolder) -> Section:
                       id="diagnosis-facts")  # fmt: skip
     table = Table(["component", "noise floor std [um | urad]", "baseline residual RMS / floor"], rows,
                   id="noise-floor")  # fmt: skip
-    return Section("noise-floor", "Noise floor", [facts, table])
+    blocks = [facts, table]
+    if scatter := nf.get("loaded_scatter"):  # the loaded repeats' creep check (researcher/loaded_scatter.py)
+        check = LoadedScatter.from_dict(scatter)
+        blocks.append(Text([check.sentence(r["alpha"])], id="loaded-scatter"))
+    return Section("noise-floor", "Noise floor", blocks)
 
 
 def detection(folder: ResultFolder) -> Section:

@@ -99,6 +99,9 @@ class NoiseFloor:
     loaded_scans : int
         The loaded scans averaged at the other end of each displacement: 1 (the test's own) or
         ``m'`` after :meth:`for_scan_mean` with loaded repeats.
+    loaded_scatter : LoadedScatter or None
+        Whether the loaded repeats scatter like the unloaded ones (:mod:`.loaded_scatter`, a
+        check for creep), set with the mean loaded frames; None without loaded repeats.
     """
 
     covariance: np.ndarray
@@ -107,6 +110,8 @@ class NoiseFloor:
     test_ids: tuple[str, ...] = ()
     reference_scans: int = 1  # unloaded scans averaged into each displacement (:meth:`for_scan_mean`)
     loaded_scans: int = 1  # loaded scans averaged into each displacement
+    # a .loaded_scatter.LoadedScatter when the loaded block was scanned again (:func:`.scan_mean.against_scan_mean`)
+    loaded_scatter: object = None
 
     def for_scan_mean(self, scans: int, loaded_scans: int = 1) -> NoiseFloor:
         """The floor of a displacement measured from the mean of ``scans`` unloaded scans to the

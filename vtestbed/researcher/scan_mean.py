@@ -43,6 +43,7 @@ from ..dataset_repeats import read_repeats
 from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import require_floor
+from .loaded_scatter import loaded_scatter
 from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
 from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
 
@@ -106,7 +107,9 @@ def against_scan_mean(
         ``frame_unloaded`` and ``frame_loaded`` the mean frames, ``displacement`` between them;
         the measurements themselves when ``m = m' = 1``.
     floor : NoiseFloor
-        ``floor.for_scan_mean(m, m')``: covariance times ``(1 / m + 1 / m') / 2``.
+        ``floor.for_scan_mean(m, m')``: covariance times ``(1 / m + 1 / m') / 2``; with ``m' > 1``
+        its ``loaded_scatter`` says whether the loaded scans scatter as the unloaded ones
+        (:func:`.loaded_scatter.loaded_scatter`).
     """
     m = common_scan_count(measurements, frames_by_test)
     m_loaded = common_scan_count(measurements, loaded_frames)
@@ -118,7 +121,10 @@ def against_scan_mean(
         loaded = mean_frame(list(loaded_frames[t.test_id])[:m_loaded]) if m_loaded > 1 else t.frame_loaded
         moved = displacement_in_block_frame(ref, loaded)
         out.append(replace(t, frame_unloaded=ref, frame_loaded=loaded, displacement=moved))
-    return out, floor.for_scan_mean(m, m_loaded)
+    scaled = floor.for_scan_mean(m, m_loaded)
+    if m_loaded > 1:  # the loaded scans averaged: do they scatter as the unloaded ones? (creep)
+        scaled = replace(scaled, loaded_scatter=loaded_scatter(frames_by_test, loaded_frames))
+    return out, scaled
 
 
 def loaded_repeat_frames(
