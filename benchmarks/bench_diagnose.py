@@ -4,12 +4,15 @@ Simulates scenarios/kr60_hidden_link.toml once (20 tests + 5 validation tests, 3
 into a temporary folder, then times the whole diagnosis: reading and fitting the 150 clouds, the
 noise floor, every candidate's fits over the forward rounds, the report and its figures. Prints
 wall and CPU time (the process runs on one core: BLAS and open3d are single-threaded here).
+``--loaded-repeats R`` scans the loaded block R more times per test too (25 R more clouds).
 
-    .venv/bin/python benchmarks/bench_diagnose.py
+    .venv/bin/python benchmarks/bench_diagnose.py [--loaded-repeats 3]
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import os
 import tempfile
 import time
@@ -26,9 +29,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--loaded-repeats", type=int, default=0, help="repeat scans of the loaded block per test"
+    )
+    args = parser.parse_args()
+    scenario = load_scenario(ROOT / "scenarios" / "kr60_hidden_link.toml")
+    scanner = dataclasses.replace(scenario.scanner, loaded_repeats=args.loaded_repeats)
+    scenario = dataclasses.replace(scenario, scanner=scanner)
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "dataset"
-        simulate(load_scenario(ROOT / "scenarios" / "kr60_hidden_link.toml"), data)
+        simulate(scenario, data)
+        clouds = sum(1 for _ in (data / "clouds").iterdir())
+        print(f"{clouds} clouds ({args.loaded_repeats} loaded repeats per test)")
         for statics in ("exact", "paper"):
             w0, c0 = time.perf_counter(), time.process_time()
             report = diagnose(data, out=Path(tmp) / f"diag_{statics}", statics=statics)

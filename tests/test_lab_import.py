@@ -295,6 +295,23 @@ def test_the_import_modules_never_reach_the_world():
     assert out.stdout.split() == ["False", "False"], out.stderr[-2000:]  # open3d only when a PCD/XYZ is read
 
 
+def test_a_lab_dataset_identifies_without_the_physics_engine(simulated):
+    """``vtestbed identify`` on a dataset loads neither MuJoCo nor the truth world
+    (vtestbed.dataset_identification), and its numbers are the in-process identification's."""
+    root, reference = simulated
+    probe = (
+        "import json, sys\nfrom vtestbed.cli.main import main\n"
+        f"rc = main(['identify', {str(root)!r}, '--quiet', '--no-truth', '--json'])\n"
+        "print(json.dumps([rc, 'mujoco' in sys.modules, 'vtestbed.world' in sys.modules]))"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    *printed, last = out.stdout.strip().splitlines()
+    assert json.loads(last) == [0, False, False], out.stderr[-2000:]
+    result = json.loads("\n".join(printed))
+    k = np.array(result["stiffness"])  # N*m/rad
+    np.testing.assert_allclose(k, reference.stiffness, rtol=1e-12)
+
+
 # ---------------------------------------------------------------------- bad input: exit 2, no traceback
 @pytest.fixture(scope="module")
 def lab_files(simulated, tmp_path_factory):

@@ -28,7 +28,7 @@ _EXPORTS = {
     "load_scenario": "vtestbed.scenario",
     "parse_scenario": "vtestbed.scenario",
     "simulate": "vtestbed.experiment",
-    "identify_dataset": "vtestbed.experiment",
+    "identify_dataset": "vtestbed.dataset_identification",
     "run": "vtestbed.experiment",
     "diagnose": "vtestbed.researcher.discrepancy",
     "discover": "vtestbed.discovery",

@@ -3,9 +3,9 @@
 The orchestrator of one scenario, and one of the few modules that may touch both sides:
 ``simulate`` drives the truth world (:mod:`vtestbed.world`: rig, scanner, F/T sensor, one test's
 physics in :mod:`vtestbed.world.physics`) and writes a lab-compatible dataset plus a separate
-``truth.json``. ``identify_dataset`` is the researcher's job on any dataset
-(:mod:`vtestbed.researcher`), and ``run`` does both, then compares with the truth
-(:mod:`vtestbed.comparison`) only after identification.
+``truth.json``. ``identify_dataset`` (:mod:`vtestbed.dataset_identification`, imported here for
+``run`` and its callers) is the researcher's job on any dataset, and ``run`` does both, then
+compares with the truth (:mod:`vtestbed.comparison`) only after identification.
 
 Reproducibility: test ``i`` of group ``g`` draws from ``SeedSequence(seed, spawn_key=(g, i))``,
 so a test's numbers do not depend on which other tests ran before it, and a resumed run gives
@@ -24,15 +24,14 @@ import numpy as np
 
 from . import comparison, ply
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
+from .dataset_identification import identify_dataset
 from .dataset_repeats import LoadedRepeatWriter, RepeatRecord, RepeatWriter, repeat_cloud_path
-from .errors import DatasetError, ScanError, SensorOverloadError, UnknownNameError
+from .errors import DatasetError, ScanError, SensorOverloadError
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
 from .lab import MIN_TENSION_N, LabSetup
 from .output_folders import RUN, require_own_kind
 from .researcher import report
-from .researcher.measure import identify_measurements, load_measurements
-from .robots import load_robot
 from .run_record import Timings, versions
 from .scenario import Scenario, load_field, pose_field
 from .truth_file import TruthFile
@@ -285,88 +284,6 @@ def _write_repeats(
 def _repeats_to_do(writer, tid: str, repeats: int) -> list[int]:
     """The repeat numbers 1..``repeats`` of test ``tid`` that ``writer``'s file does not hold yet."""
     return [k for k in range(1, repeats + 1) if (tid, k) not in writer.done] if repeats else []
-
-
-def identify_dataset(
-    root: str | Path,
-    method: str = "fgls",
-    progress: bool = False,
-    timings: Timings | None = None,
-    strict: bool = False,
-    reference: str = "scan",
-):
-    """The researcher's job on any dataset: returns (setup, measurements, IdentificationResult).
-
-    ``strict``: implausible tests (a block that did not move, moved against or far beyond its
-    load, a force that misses the block) raise instead of warning. ``reference``: what each
-    displacement is measured against, the test's own unloaded scan (``"scan"``, the paper's) or
-    the mean of its unloaded scans (``"mean"``, needs repeat scans;
-    :mod:`vtestbed.researcher.scan_mean`).
-    """
-    setup, measurements, result, _ = identify_dataset_with_floor(
-        root, method, progress, timings, strict, floor=method == "gls_floor", reference=reference
-    )
-    return setup, measurements, result
-
-
-def identify_dataset_with_floor(
-    root: str | Path,
-    method: str = "fgls",
-    progress: bool = False,
-    timings: Timings | None = None,
-    strict: bool = False,
-    floor: bool = True,
-    reference: str = "scan",
-):
-    """:func:`identify_dataset` plus the dataset's repeat-scan noise floor, estimated once.
-
-    Returns (setup, measurements, IdentificationResult, NoiseFloor or None); the floor is None
-    without repeat scans or with ``floor=False`` (unless ``method`` weights with it, "gls_floor",
-    or ``reference="mean"`` scales it). With ``reference="mean"`` the measurements and the floor
-    are those of displacements against each test's mean unloaded frame (to its mean loaded frame
-    when the dataset has loaded repeats).
-    """
-    from .researcher.scan_mean import REFERENCES, against_reference, loaded_scan_frames
-
-    if reference not in REFERENCES:  # before any cloud is read
-        raise UnknownNameError("displacement reference", reference, REFERENCES)
-    timings = timings or Timings()
-    bar = None
-
-    def tick(done, total):
-        nonlocal bar
-        if progress and bar is None:  # once the dataset's files have been read: an error in them
-            from tqdm import tqdm  # is then one line, not appended to an empty bar
-
-            bar = tqdm(desc="process clouds", unit="test", total=total)
-        if bar is not None:
-            bar.total = total
-            bar.update(done - bar.n)
-
-    t0 = time.perf_counter()
-    try:
-        setup, measurements = load_measurements(root, progress=tick)
-    finally:
-        if bar:
-            bar.close()  # ends the bar's line before an error is printed
-    t1 = time.perf_counter()
-    noise_floor = None
-    if floor or method == "gls_floor" or reference != "scan":  # None without repeats: gls_floor says so
-        from .researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
-
-        frames = repeat_scan_frames(root, measurements)
-        noise_floor = None if frames is None else noise_floor_from_frames(frames)
-        loaded = loaded_scan_frames(root, measurements) if reference != "scan" else None
-        measurements, noise_floor = against_reference(
-            reference, measurements, frames, noise_floor, root, loaded
-        )
-    result = identify_measurements(
-        measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
-        source=str(root),
-    )  # fmt: skip
-    timings.process += t1 - t0
-    timings.identify += time.perf_counter() - t1
-    return setup, measurements, result, noise_floor
 
 
 def run(

@@ -73,7 +73,7 @@ def _cmd_identify(args) -> int:
             )
         return _identify_with_model(args)
     from ..comparison import compare, read_truth
-    from ..experiment import identify_dataset_with_floor
+    from ..dataset_identification import identify_dataset_with_floor
 
     reference = args.reference or "scan"
     setup, measurements, result, floor = identify_dataset_with_floor(  # floor: None without repeats

@@ -116,7 +116,7 @@ def _cmd_design(args) -> int:
 
 
 def _cmd_next(args) -> int:
-    from ..experiment import identify_dataset
+    from ..dataset_identification import identify_dataset
     from ..researcher.measure import stacked
 
     setup, measurements, result = identify_dataset(args.dataset, method=args.method)
