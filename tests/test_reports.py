@@ -106,6 +106,10 @@ def test_campaign_page_shows_the_parquet_stores_numbers(pages, campaign_folder):
             e = cell[f"err_joint{j + 1}"].to_numpy()
             close(row[3 + j], 100 * np.sqrt(np.mean(e**2)), 3)
     assert "campaign-facts" in t.ids and "spread-check" in t.ids
+    manifest = json.loads((campaign_folder / "campaign.json").read_text())
+    facts = dict(row[:2] for row in t.tables["campaign-facts"])
+    assert manifest["reference"] == "scan"  # the fixture's scenario measures as the paper does
+    assert facts["displacements measured from"] == "one unloaded and one loaded scan (the paper's)"
     assert "fig-error-vs-noise" in t.ids and "fig-error-vs-tests" in t.ids and "fig-spread" in t.ids
 
 

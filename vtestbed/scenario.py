@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -378,17 +378,3 @@ def read_scenario_file(path: str | Path, what: str = "scenario") -> dict:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario TOML file."""
     return parse_scenario(read_scenario_file(path), Path(path))
-
-
-def scenario_summary(s: Scenario) -> dict:
-    return {
-        "name": s.name,
-        "robot": s.robot_name,
-        "seed": s.seed,
-        "n_tests": s.n_tests,
-        "method": s.method,
-        "reference": s.reference,
-        "scanner": {k: v for k, v in asdict(s.scanner).items() if k != "noise_model"},
-        "force_sensor": asdict(s.force_sensor),
-        "fingerprint": s.fingerprint,
-    }

@@ -128,6 +128,7 @@ def open_manifest(out: Path, campaign: Campaign, allow_code_change: bool) -> dic
     robot = campaign.scenario.robot
     k_true = load_truth(robot.name).stiffness_true
     return {"format": 1, "fingerprint": campaign.fingerprint, "code_fingerprint": code, "scenario": campaign.scenario.name,
+            "reference": campaign.scenario.reference,  # what every trial's displacements are measured from
             "joint_names": list(robot.joint_names), "stiffness_true_Nm_per_rad": k_true.tolist(),
             "campaign": campaign.to_dict(), "plans": {}, "plan_quality": {}}  # fmt: skip
 

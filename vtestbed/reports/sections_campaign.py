@@ -9,6 +9,7 @@ from __future__ import annotations
 from .blocks import Figure, KeyValues, Num, Section, Table, Text, versions
 from .figures import campaign as campaign_summary
 from .loader import ResultFolder
+from .sections_run import measured_from
 
 AXES = ("pose_set", "n_tests", "scanner_noise_scale", "ft_noise_scale", "method")
 
@@ -29,6 +30,7 @@ def campaign(folder: ResultFolder) -> Section:
     axes = "; ".join(f"{k} = {', '.join(str(v) for v in vals)}" for k, vals in c.get("axes", {}).items())
     items = [("scenario", m["scenario"]), ("seed", str(c.get("seed"))), ("trials per cell", str(c.get("trials"))),
              ("paired (common random numbers)", str(c.get("paired"))), ("axes", axes or "none"),
+             ("displacements measured from", measured_from(m.get("reference"))),
              ("cells", str(df["cell_key"].nunique())), ("trials on disk", str(len(df))),
              ("failed trials", str(int((df["status"] != "ok").sum())))]  # fmt: skip
     return Section("campaign", "Campaign", [KeyValues(items, id="campaign-facts")])

@@ -19,6 +19,17 @@ from .loader import ReportError, ResultFolder
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
 
+def measured_from(reference: str | None) -> str:
+    """What the displacements were measured from, for a report's facts (scenario ``reference``)."""
+    if reference is None:
+        return "not recorded (results written before 2026-11-27)"
+    return (
+        "the mean of each test's scans"
+        if reference == "mean"
+        else "one unloaded and one loaded scan (the paper's)"
+    )
+
+
 def _tests(folder: ResultFolder) -> list:
     from ..dataset import read_tests
 
@@ -81,8 +92,7 @@ def scenario(folder: ResultFolder) -> Section:
 
     r = folder.data
     items = [("scenario", r["scenario"]), ("seed", str(r["seed"])), ("method", r["method"]),
-             ("displacements measured from", "the mean of each test's scans" if r.get("reference") == "mean"
-              else "one unloaded and one loaded scan (the paper's)"),
+             ("displacements measured from", measured_from(r.get("reference", "scan"))),
              ("identification tests", str(r["n_tests"])), ("validation tests", str(len(r["validation"])))]  # fmt: skip
     if folder.dataset is not None:
         setup = read_setup(folder.dataset)
