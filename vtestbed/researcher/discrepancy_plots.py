@@ -32,6 +32,9 @@ def plot_gap(report: dict, path: Path) -> Path:
             xv + 0.2, val["after"]["per_test"], 0.4, color="#c00000", label="validation (predicted), after"
         )
         ids += list(val["before"]["test_ids"])
+        if "expected_ratio" in val["after"]:  # what a correct model with the named terms reaches
+            ax.hlines(val["after"]["expected_ratio"], xv[0] - 0.5, xv[-1] + 0.5, colors="#c00000",
+                      linestyles="--", lw=0.9, label="a correct model's validation error (mean)")  # fmt: skip
     ax.axhline(1.0, color="k", lw=0.8, label="noise floor")
     ax.set_xticks(np.arange(len(ids)), ids, rotation=90, fontsize=7)
     ax.set_ylabel("RMS whitened residual / floor")
