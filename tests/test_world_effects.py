@@ -34,6 +34,7 @@ from vtestbed.world.effects import (
     GravityCompensator,
     JointCoupling,
     LinkCompliance,
+    LoadCreep,
     NonlinearJoint,
     ScannerScale,
 )
@@ -256,6 +257,7 @@ NULL_EFFECTS = (
     GeometricError(da_mm=(0.0,) * 6, dd_mm=(0.0,) * 6, dalpha_deg=(0.0,) * 6, dtheta_deg=(0.0,) * 6),
     BlockOffset(translation_mm=(0.0,) * 3, rotation_deg=(0.0,) * 3),
     ScannerScale(scale_ppm=0.0),
+    LoadCreep(rate_percent=0.0),
 )
 
 

@@ -34,10 +34,11 @@ from .output_folders import RUN, require_own_kind
 from .researcher import report
 from .run_record import Timings, versions
 from .scenario import Scenario, load_field, pose_field
+from .transforms import invert
 from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
-from .world.repeats import draw_repeat_scans, loaded_repeat_rng, repeat_rng
+from .world.repeats import draw_repeat_scans, loaded_repeat_geometries, loaded_repeat_rng, repeat_rng
 from .world.rig import Rig
 from .world.sensors import ForceTorqueSensor
 from .world.truth import load_truth
@@ -197,8 +198,12 @@ def simulate(
                     )
                 if loaded_todos[tid]:  # the loaded block scanned again, from its own stream
                     rng = loaded_repeat_rng(scenario.seed, group, i)
+                    moved = loaded_repeat_geometries(  # a creeping block moves on between its scans
+                        phys.hits_loaded, invert(phys.scanner.pose_world) @ phys.loaded.block_pose,
+                        phys.displacement_true, scenario.effects, loaded_repeats,
+                    )  # fmt: skip
                     _write_repeats(out, loaded_writer, tid, loaded_todos[tid], phys.hits_loaded, rng,
-                                   loaded_repeats, scenario, timings, "loaded")  # fmt: skip
+                                   loaded_repeats, scenario, timings, "loaded", moved)  # fmt: skip
                 if tid not in writer.done or tid in lost:
                     rng = test_rng(scenario.seed, group, i)
                     s0, s1, scanner = phys.unloaded, phys.loaded, phys.scanner
@@ -267,12 +272,14 @@ def _write_repeats(
     scenario: Scenario,
     timings: Timings,
     state: str = "unloaded",
+    geometries=None,
 ) -> None:
-    """Draw all ``repeats`` repeat scans of test ``tid``'s ``state`` block from its ``hits`` with
-    ``rng`` (consumed in order, so repeat k is the same on a resume) and write those numbered in
-    ``todo`` (1, 2, ...), each recorded in ``writer``'s file."""
+    """Draw all ``repeats`` repeat scans of test ``tid``'s ``state`` block from its ``hits`` (per
+    repeat from ``geometries`` when the block moves between scans) with ``rng`` (consumed in order,
+    so repeat k is the same on a resume) and write those numbered in ``todo`` (1, 2, ...), each
+    recorded in ``writer``'s file."""
     t0 = time.perf_counter()
-    clouds = draw_repeat_scans(hits, scenario.scanner.noise_model, rng, repeats, scenario.effects)
+    clouds = draw_repeat_scans(hits, scenario.scanner.noise_model, rng, repeats, scenario.effects, geometries)
     t1 = time.perf_counter()
     timings.scan += t1 - t0
     for k in todo:

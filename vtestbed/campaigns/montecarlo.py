@@ -28,140 +28,13 @@ from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
 from ..researcher.noise_floor import noise_floor_from_frames
 from ..scenario import Scenario, pose_field
+from ..transforms import invert
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
 from ..world.scan_noise import ScanGeometry, ScanNoise
-from ..world.scanner import Scanner
 from ..world.sensors import ForceTorqueSensor
 from ..world.truth import load_truth
-
-
-@dataclass(frozen=True, eq=False)
-class _Hits(ScanGeometry):
-    """A prepared scan's hits as the noise model needs them: the incidence cosines are stored
-    (computed once, as :class:`ScanGeometry` computes them), the normals and geoms are not."""
-
-    cos: np.ndarray | None = None
-
-    @property
-    def cos_incidence(self) -> np.ndarray:
-        return self.cos
-
-
-@dataclass(frozen=True, eq=False)
-class CompactScan:
-    """One scan's noise-free hits in 20 bytes a point instead of 88.
-
-    A worker keeps the hits of every test of a test list for all its trials, so their size is
-    the worker's memory. The cast computes a hit as ``dist * rays[index]``: storing ``dist``,
-    ``index`` and the incidence cosine (and a ray table shared by the tests, :func:`_shared_rays`)
-    rebuilds the same doubles bit for bit. A scan whose distances cannot be recovered exactly
-    from its points keeps the points themselves (``points``).
-    """
-
-    dist: np.ndarray | None  # (N,) distance along the ray [m], or None: ``points`` holds them
-    index: np.ndarray  # (N,) int32 row of the test's ray grid
-    cos: np.ndarray  # (N,) cosine of the incidence angle
-    points: np.ndarray | None = None  # (N, 3), only when ``dist`` is None
-
-    @classmethod
-    def of(cls, hits: ScanGeometry, rays: np.ndarray) -> CompactScan:
-        index = hits.ray_index.astype(np.int32)
-        dirs, pts = rays[index], hits.points_m
-        if not np.array_equal(dirs, hits.directions):
-            raise ValueError("the hits do not come from this ray grid")
-        quotient = pts[:, 2] / dirs[:, 2]
-        dist = quotient.copy()
-        bad = ~np.all(dist[:, None] * dirs == pts, axis=1)
-        for step in (np.inf, -np.inf):  # a quotient can be one ulp off the cast's distance
-            candidate = np.where(bad, np.nextafter(quotient, step), dist)
-            fixed = bad & np.all(candidate[:, None] * dirs == pts, axis=1)
-            dist[fixed] = candidate[fixed]
-            bad &= ~fixed
-        exact = not bad.any()
-        return cls(dist if exact else None, index, hits.cos_incidence, None if exact else pts.copy())
-
-    def hits(self, rays: np.ndarray) -> ScanGeometry:
-        dirs = rays[self.index]
-        points = self.dist[:, None] * dirs if self.dist is not None else self.points
-        return _Hits(points, dirs, None, None, self.index, self.cos)
-
-    def reindexed(self, index: np.ndarray) -> CompactScan:
-        """The same scan with its rays numbered as rows of another table."""
-        return CompactScan(self.dist, index, self.cos, self.points)
-
-    @property
-    def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.dist, self.index, self.cos, self.points) if a is not None)
-
-
-def _ray_grid(step: float, ku: tuple[float, float], kv: tuple[float, float]) -> np.ndarray:
-    """(M, 3) unit rays through the lattice points ``(ku, kv) * step`` of the normalised image
-    plane, ``ku[0] <= ku <= ku[1]`` (row-major in v, u): :attr:`Scanner.ray_directions`'
-    own arithmetic, so a window's rays are the same doubles in any grid that covers it."""
-    us = np.arange(ku[0], ku[1] + 1) * step
-    vs = np.arange(kv[0], kv[1] + 1) * step
-    uu, vv = np.meshgrid(us, vs)
-    dirs = np.stack([uu.ravel(), vv.ravel(), np.ones(uu.size)], axis=1)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    dirs.flags.writeable = False
-    return dirs
-
-
-@dataclass(frozen=True)
-class _GridBox:
-    """Where a scanner's ray grid lies on the lattice of its pitch: lattice columns ``ku`` and
-    rows ``kv`` (inclusive, integral floats as :attr:`Scanner.ray_directions` computes them)."""
-
-    step: float
-    ku: tuple[float, float]
-    kv: tuple[float, float]
-
-    @classmethod
-    def of(cls, scanner: Scanner) -> _GridBox:
-        step = scanner.point_spacing_m / scanner.standoff_m
-        hu, hv = scanner.half_field
-        u0, u1, v0, v1 = scanner.window if scanner.window is not None else (-hu, hu, -hv, hv)
-        ku = (float(np.ceil(u0 / step)), float(np.floor(u1 / step)))
-        kv = (float(np.ceil(v0 / step)), float(np.floor(v1 / step)))
-        return cls(step, ku, kv)
-
-    def rows_in(self, outer: _GridBox, index: np.ndarray) -> np.ndarray:
-        """Rows of ``outer``'s grid of the rays numbered ``index`` in this grid."""
-        nu, outer_nu = int(self.ku[1] - self.ku[0]) + 1, int(outer.ku[1] - outer.ku[0]) + 1
-        iv, iu = np.divmod(index.astype(np.int64), nu)
-        rows = (iv + int(self.kv[0] - outer.kv[0])) * outer_nu + (iu + int(self.ku[0] - outer.ku[0]))
-        return rows.astype(np.int32)
-
-
-def _shared_rays(tests: list[tuple]) -> list[tuple]:
-    """Re-point every test's scans at one ray table per lattice pitch (the union of the windows).
-
-    A scanner's rays depend only on its pitch and window, and the windows of a test list overlap
-    nearly wholly: one table of about 2.6 MB replaces 2.3 MB per test. ``tests`` rows are
-    ``(fields, box, scans)``; a test whose rays do not regenerate bit for bit (``box`` is its
-    own ray array) keeps its own table. Returns ``(fields, rays, scans)`` rows.
-    """
-    tables = {}
-    for step in {box.step for _, box, _ in tests if isinstance(box, _GridBox)}:
-        boxes = [box for _, box, _ in tests if isinstance(box, _GridBox) and box.step == step]
-        ku = (min(b.ku[0] for b in boxes), max(b.ku[1] for b in boxes))
-        kv = (min(b.kv[0] for b in boxes), max(b.kv[1] for b in boxes))
-        outer = _GridBox(step, ku, kv)
-        tables[step] = (outer, _ray_grid(step, ku, kv))
-    out = []
-    for fields, box, scans in tests:
-        if isinstance(box, _GridBox):
-            outer, table = tables[box.step]
-            own = _ray_grid(box.step, box.ku, box.kv)
-            all_rows = box.rows_in(outer, np.arange(len(own)))
-            if np.array_equal(table[all_rows], own):
-                scans = tuple(scan.reindexed(all_rows[scan.index]) for scan in scans)
-                out.append((fields, table, scans))
-                continue
-            box = own  # the shared table differs: keep the test's own rays
-        out.append((fields, box, scans))
-    return out
+from .compact_scan import CompactScan, GridBox, ray_grid, shared_rays
 
 
 @dataclass(frozen=True)
@@ -179,6 +52,7 @@ class PreparedTest:
     wrench_unloaded: np.ndarray  # (6,) true sensor wrench
     wrench_loaded: np.ndarray  # (6,)
     displacement_true: np.ndarray  # (6,) block frame [m, rad]
+    block_loaded_in_scanner: np.ndarray | None = None  # (4, 4) true loaded block pose, scanner frame
 
     @property
     def hits_unloaded(self) -> ScanGeometry:
@@ -255,8 +129,8 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
         except (ScanError, SensorOverloadError) as exc:  # in the scenario's terms, as `simulate` says it
             raise test_error(scenario, group, i, exc) from None
         rays = phys.scanner.ray_directions
-        box = _GridBox.of(phys.scanner)
-        if not np.array_equal(_ray_grid(box.step, box.ku, box.kv), rays):
+        box = GridBox.of(phys.scanner)
+        if not np.array_equal(ray_grid(box.step, box.ku, box.kv), rays):
             box = rays  # cannot be regenerated: keep this test's own rays
         fields = dict(
             test_id=test_id(group, i),
@@ -267,13 +141,14 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
             wrench_unloaded=phys.unloaded.sensor_wrench,
             wrench_loaded=phys.loaded.sensor_wrench,
             displacement_true=phys.displacement_true,
+            block_loaded_in_scanner=invert(phys.scanner.pose_world) @ phys.loaded.block_pose,
         )
         scans = (CompactScan.of(phys.hits_unloaded, rays), CompactScan.of(phys.hits_loaded, rays))
         rows.append((fields, box, scans))
         del phys, rays  # only the compact scans outlive the test
     tests = [
         PreparedTest(rays=rays, scan_unloaded=s0, scan_loaded=s1, **fields)
-        for fields, rays, (s0, s1) in _shared_rays(rows)
+        for fields, rays, (s0, s1) in shared_rays(rows)
     ]
     return PreparedScenario(scenario, dataset_setup(scenario, lab), tuple(tests), rig.truth.stiffness_true)
 
@@ -388,14 +263,18 @@ def repeat_frames(
     """
     from ..researcher.noise_floor import scan_frames
     from ..researcher.scan_mean import loaded_repeat_frames
-    from ..world.repeats import draw_repeat_scans, loaded_repeat_rng, repeat_rng
+    from ..world.repeats import draw_repeat_scans, loaded_repeat_geometries, loaded_repeat_rng, repeat_rng
 
     effects, setup = prepared.scenario.effects, prepared.setup
     frames = {}
     for t, m in zip(tests, measurements):
         if state == "loaded":
             rng = loaded_repeat_rng(seed, t.group, t.index)
-            clouds = draw_repeat_scans(t.hits_loaded, noise, rng, repeats, effects)
+            hits = t.hits_loaded  # as simulate draws them: a creeping block moves on between scans
+            moved = loaded_repeat_geometries(
+                hits, t.block_loaded_in_scanner, t.displacement_true, effects, repeats
+            )
+            clouds = draw_repeat_scans(hits, noise, rng, repeats, effects, moved)
             labels = [f"test {t.test_id}, loaded repeat {k} cloud" for k in range(1, repeats + 1)]
             frames[t.test_id] = loaded_repeat_frames(m.frame_loaded, clouds, setup, labels)
             continue

@@ -99,7 +99,9 @@ def loaded_scatter(
     ):
         return None
     unloaded, loaded = noise_floor_from_frames(unloaded_frames), noise_floor_from_frames(loaded_frames)
-    ratio = np.diag(loaded.covariance) / np.diag(unloaded.covariance)
+    var_loaded, var_unloaded = np.diag(loaded.covariance), np.diag(unloaded.covariance)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a perfect (simulated) scanner: 0 / 0
+        ratio = np.where(var_unloaded > 0, var_loaded / var_unloaded, np.where(var_loaded > 0, np.inf, 1.0))
     p_each = f_dist.sf(ratio, loaded.n_samples, unloaded.n_samples)
     return LoadedScatter(
         ratio, int(loaded.n_samples), int(unloaded.n_samples), float(min(1.0, 6 * p_each.min()))

@@ -19,12 +19,22 @@ the researcher can average both ends of a displacement (:mod:`vtestbed.researche
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from ..transforms import homogeneous, invert, matrix_from_rotation_vector
 from .physics import GROUP_KEYS
 from .scan_noise import ScanGeometry, ScanNoise
 
-__all__ = ["LOADED_REPEAT_STREAM", "REPEAT_STREAM", "draw_repeat_scans", "loaded_repeat_rng", "repeat_rng"]
+__all__ = [
+    "LOADED_REPEAT_STREAM",
+    "REPEAT_STREAM",
+    "draw_repeat_scans",
+    "loaded_repeat_geometries",
+    "loaded_repeat_rng",
+    "repeat_rng",
+]
 
 REPEAT_STREAM = 1  # last spawn-key entry of the repeat scans' stream
 LOADED_REPEAT_STREAM = 2  # last spawn-key entry of the loaded block's repeat scans
@@ -58,12 +68,54 @@ def loaded_repeat_rng(seed: int, group: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 
+def loaded_repeat_geometries(
+    hits_loaded: ScanGeometry,
+    block_in_scanner: np.ndarray,
+    displacement: np.ndarray,
+    effects: tuple,
+    repeats: int,
+) -> list[ScanGeometry] | None:
+    """The loaded block's noise-free hits at each loaded repeat 1..``repeats``, moved on by the
+    effects that move a loaded block (load creep, ``WorldEffect.loaded_motion``); None when none does.
+
+    Parameters
+    ----------
+    hits_loaded : ScanGeometry
+        The loaded scan's hits (scanner frame, m).
+    block_in_scanner : (4, 4) array
+        The loaded block's true pose in the scanner frame.
+    displacement : (6,) array
+        The test's elastic block displacement, unloaded to loaded [m, rad], block frame.
+    effects : tuple of WorldEffect
+        The world's hidden effects.
+    repeats : int
+        Loaded repeats per test.
+
+    The hit points move rigidly with the block; the rays, the normals and so the incidence the
+    noise model reads stay (the campaign trial keeps only the incidence, and must draw the same
+    scans): for motions of a few um and urad that is the block's surface sampled a hair's breadth
+    along it, with the noise of an incidence a few urad off, which no plane fit can tell.
+    """
+    movers = [e for e in effects if e.moves_loaded_block and not e.is_null]
+    if not movers:
+        return None
+    out = []
+    for k in range(1, repeats + 1):
+        twist = sum(e.loaded_motion(displacement, k) for e in movers)
+        moved = block_in_scanner @ homogeneous(matrix_from_rotation_vector(twist[3:]), twist[:3])
+        motion = moved @ invert(block_in_scanner)  # scanner frame
+        rot, shift = motion[:3, :3], motion[:3, 3]
+        out.append(dataclasses.replace(hits_loaded, points_m=hits_loaded.points_m @ rot.T + shift))
+    return out
+
+
 def draw_repeat_scans(
     hits_unloaded: ScanGeometry,
     noise: ScanNoise | None,
     rng: np.random.Generator,
     repeats: int,
     effects: tuple = (),
+    geometries: list[ScanGeometry] | None = None,
 ) -> list[np.ndarray]:
     """``repeats`` further noisy scans of one test's unloaded block, same scanner pose (or of its
     loaded block: ``hits_unloaded`` the loaded hits, ``rng`` :func:`loaded_repeat_rng`).
@@ -82,6 +134,9 @@ def draw_repeat_scans(
     effects : tuple of WorldEffect
         The world's hidden effects: those that change the measurement chain (e.g. a scanner
         scale error) act on every repeat as on the test's own scans (they draw nothing).
+    geometries : list of ScanGeometry, optional
+        Per repeat, the hits to draw it from instead of ``hits_unloaded``: a loaded block that
+        moves on between its scans (:func:`loaded_repeat_geometries`).
 
     Returns
     -------
@@ -90,8 +145,9 @@ def draw_repeat_scans(
     """
     chain = tuple(e for e in effects if e.changes_measurement and not e.is_null)
     scans = []
-    for _ in range(repeats):
-        points = noise.apply(hits_unloaded, rng) if noise is not None else hits_unloaded.points_m.copy()
+    for k in range(repeats):
+        hits = hits_unloaded if geometries is None else geometries[k]
+        points = noise.apply(hits, rng) if noise is not None else hits.points_m.copy()
         for effect in chain:
             points = effect.scan_points(points)
         scans.append(points)

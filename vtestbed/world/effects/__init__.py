@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from ...schema import Fields
 from .base import ExtraHinge, Param, WorldEffect
+from .creep import LoadCreep
 from .joints import JointCoupling, NonlinearJoint
 from .measurement import FtBiasDrift, FtMisalignment, ScannerScale
 from .mounting import BlockOffset, GeometricError
@@ -27,6 +28,7 @@ EFFECT_TYPES: tuple[type[WorldEffect], ...] = (
     GeometricError,
     BlockOffset,
     ScannerScale,
+    LoadCreep,
 )
 EFFECTS = {t.name: t for t in EFFECT_TYPES}
 
@@ -41,6 +43,7 @@ __all__ = [
     "GravityCompensator",
     "JointCoupling",
     "LinkCompliance",
+    "LoadCreep",
     "NonlinearJoint",
     "Param",
     "ScannerScale",

@@ -1,6 +1,6 @@
 """The shape of a hidden effect: a named, world-only piece of physics the paper's model leaves out.
 
-An effect changes the truth world in one or more of four places, each a method with a neutral
+An effect changes the truth world in one or more of five places, each a method with a neutral
 default, so a subclass implements only what its physics needs:
 
 ``hinges``
@@ -15,6 +15,9 @@ default, so a subclass implements only what its physics needs:
 ``wrench_reading`` / ``scan_points``
     A change of the measurement chain: the wrench the sensor reports (a misaligned sensor, a
     drifting bias) or the points the scanner reports (a scale error).
+``loaded_motion``
+    The loaded block moving on while the wire stays tensioned (creep): each further scan of the
+    loaded block sees it a little farther along (:mod:`vtestbed.world.repeats`).
 
 Every effect has a fixed ``name`` (what scenario files and the discrepancy workflow call it), a
 parameter table (:class:`Param`: unit, valid range, realistic default with its source) and
@@ -97,6 +100,12 @@ class WorldEffect:
         """The points (N, 3) [m, scanner frame] the scanner reports for the true ``points``."""
         return points
 
+    def loaded_motion(self, displacement: np.ndarray, scan: int) -> np.ndarray | None:
+        """The loaded block's further motion (6,) [m, rad], in its own frame, at its ``scan``-th scan
+        (0: the test's own loaded scan, k: loaded repeat k) for the test's elastic ``displacement``
+        (6,) [m, rad]; None when the block holds still under the load."""
+        return None
+
     def check_world(self, robot, truth, field: str) -> None:
         """Raise an OutOfRangeError naming ``field`` if the effect cannot exist in this world."""
         return None
@@ -105,6 +114,10 @@ class WorldEffect:
     @property
     def has_joint_forces(self) -> bool:
         return type(self).joint_forces is not WorldEffect.joint_forces
+
+    @property
+    def moves_loaded_block(self) -> bool:
+        return type(self).loaded_motion is not WorldEffect.loaded_motion
 
     @property
     def changes_measurement(self) -> bool:
