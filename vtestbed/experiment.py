@@ -34,7 +34,6 @@ from .output_folders import RUN, require_own_kind
 from .researcher import report
 from .run_record import Timings, versions
 from .scenario import Scenario, load_field, pose_field
-from .transforms import invert
 from .truth_file import TruthFile
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
@@ -199,7 +198,7 @@ def simulate(
                 if loaded_todos[tid]:  # the loaded block scanned again, from its own stream
                     rng = loaded_repeat_rng(scenario.seed, group, i)
                     moved = loaded_repeat_geometries(  # a creeping block moves on between its scans
-                        phys.hits_loaded, invert(phys.scanner.pose_world) @ phys.loaded.block_pose,
+                        phys.hits_loaded, phys.loaded_block_in_scanner,
                         phys.displacement_true, scenario.effects, loaded_repeats,
                     )  # fmt: skip
                     _write_repeats(out, loaded_writer, tid, loaded_todos[tid], phys.hits_loaded, rng,

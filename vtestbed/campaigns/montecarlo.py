@@ -28,7 +28,6 @@ from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
 from ..researcher.noise_floor import noise_floor_from_frames
 from ..scenario import Scenario, pose_field
-from ..transforms import invert
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
 from ..world.scan_noise import ScanGeometry, ScanNoise
@@ -141,7 +140,7 @@ def prepare(scenario: Scenario, include_validation: bool = False) -> PreparedSce
             wrench_unloaded=phys.unloaded.sensor_wrench,
             wrench_loaded=phys.loaded.sensor_wrench,
             displacement_true=phys.displacement_true,
-            block_loaded_in_scanner=invert(phys.scanner.pose_world) @ phys.loaded.block_pose,
+            block_loaded_in_scanner=phys.loaded_block_in_scanner,
         )
         scans = (CompactScan.of(phys.hits_unloaded, rays), CompactScan.of(phys.hits_loaded, rays))
         rows.append((fields, box, scans))

@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import DatasetError, OutOfRangeError, UnknownNameError
 from .candidates import Candidate, ModelContext
 from .identify import stack
-from .model_fit import ModelFit, Whitener, fit_model  # the fit the search tests (re-exported)
+from .model_fit import ModelFit, Whitener, fit_model, scaled_svd  # the fit the search tests (re-exported)
 from .noise_floor import NoiseFloor
 
 # How the significant candidates of a round are ranked (lower is better; both in chi^2 units):
@@ -374,9 +374,6 @@ def expected_validation_ratio(design: np.ndarray, validation_design: np.ndarray)
     parameters a model carries and the farther the validation poses lie from the identification
     ones, the further above 1 even the true model sits, so the gap's ratio reads against this.
     """
-    norms = np.linalg.norm(design, axis=0)
-    norms[norms == 0] = 1.0
-    _, s, vt = np.linalg.svd(design / norms, full_matrices=False)
-    keep = s > s[0] * 1e-12
-    projected = (validation_design / norms) @ vt[keep].T / s[keep]
+    _, s, vt, norms = scaled_svd(design)  # the fit's own kept directions (model_fit._lstsq)
+    projected = (validation_design / norms) @ vt.T / s
     return float(np.sqrt(1.0 + np.mean(np.sum(projected**2, axis=1))))

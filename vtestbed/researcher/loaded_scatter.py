@@ -22,11 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import f as f_dist
 
+from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from .noise_floor import noise_floor_from_frames
 
 __all__ = ["LoadedScatter", "loaded_scatter"]
-
-COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 
 
 @dataclass(frozen=True)

@@ -165,10 +165,18 @@ def _lstsq(xw: np.ndarray, dw: np.ndarray):
     rank, and an orthonormal basis of the kept column space. Directions below 1e-12 of the largest singular value are left out (minimum norm): the
     likelihood-ratio tests count degrees of freedom by rank, so a term that adds none is never
     significant (a link 2 bending in plane is joints 2 and 3 plus their coupling)."""
+    u, s, vt, norms = scaled_svd(xw)
+    x = (vt.T @ ((u.T @ dw) / s)) / norms
+    cov = ((vt.T / s**2) @ vt) / np.outer(norms, norms)
+    return x, cov, len(s), u
+
+
+def scaled_svd(xw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The thin SVD ``U S V^T`` of the columns ``xw`` (m, k) each scaled to unit norm, keeping the
+    directions above 1e-12 of the largest singular value (the fits' rank), and the column norms:
+    ``(U (m, r), s (r,), V^T (r, k), norms (k,))``; a zero column keeps norm 1."""
     norms = np.linalg.norm(xw, axis=0)
     norms[norms == 0] = 1.0
     u, s, vt = np.linalg.svd(xw / norms, full_matrices=False)
     keep = s > s[0] * 1e-12
-    x = (vt[keep].T @ ((u[:, keep].T @ dw) / s[keep])) / norms
-    cov = ((vt[keep].T / s[keep] ** 2) @ vt[keep]) / np.outer(norms, norms)
-    return x, cov, int(keep.sum()), u[:, keep]
+    return u[:, keep], s[keep], vt[keep], norms

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..clearance import ClearanceReport
 from ..errors import SensorOverloadError
-from ..transforms import displacement_in_block_frame
+from ..transforms import displacement_in_block_frame, invert
 from .clearance import describe_test, truth_clearance
 from .rig import Rig
 from .rig_state import RigState
@@ -59,6 +59,11 @@ class TestPhysics:
     def displacement_true(self) -> np.ndarray:
         """(6,) true block displacement in the unloaded block frame [m, rad]."""
         return displacement_in_block_frame(self.unloaded.block_pose, self.loaded.block_pose)
+
+    @property
+    def loaded_block_in_scanner(self) -> np.ndarray:
+        """(4, 4) the loaded block's true pose in the scanner frame."""
+        return invert(self.scanner.pose_world) @ self.loaded.block_pose
 
 
 def run_test_physics(
