@@ -220,3 +220,30 @@ def test_design_out_writes_a_scenario_simulate_accepts(tmp_path, capsys):
     assert (
         scenario.name == "design_minimax_3" and scenario.n_tests == 3 and scenario.robot_name == "kuka_kr60_3"
     )
+
+
+def test_ctrl_c_inside_a_lock_release_ends_as_an_interruption(tmp_path, capsys, monkeypatch):
+    """CPython may turn a Ctrl-C that lands while a threading.Condition releases its lock (a sweep
+    waiting on its workers) into ``RuntimeError: release unlocked lock`` raised during the
+    KeyboardInterrupt's handling: exit 130 and one line, as for a plain Ctrl-C. Any other
+    RuntimeError still propagates."""
+    import vtestbed.cli.sweep as sweep_cli
+
+    def interrupted_in_lock(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise RuntimeError("release unlocked lock")  # noqa: B904 (its __context__ is the interrupt)
+
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml"
+    argv = ["sweep", str(scenario), "--out", str(tmp_path / "o")]
+    monkeypatch.setattr(sweep_cli, "_cmd_sweep", interrupted_in_lock)
+    assert main(argv) == 130
+    assert capsys.readouterr().err == "vtestbed: interrupted\n"
+
+    def plain_runtime_error(args):
+        raise RuntimeError("a bug, not an interruption")
+
+    monkeypatch.setattr(sweep_cli, "_cmd_sweep", plain_runtime_error)
+    with pytest.raises(RuntimeError, match="a bug, not an interruption"):
+        main(argv)

@@ -82,6 +82,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("vtestbed: interrupted", file=sys.stderr)
         return 130
+    except RuntimeError as exc:
+        # Ctrl-C landing while a threading.Condition releases its lock (a sweep waiting on its
+        # worker processes) surfaces as "RuntimeError: release unlocked lock" raised while the
+        # KeyboardInterrupt is handled: it is the same interruption, and must end the same way
+        if not isinstance(exc.__context__, KeyboardInterrupt):
+            raise
+        print("vtestbed: interrupted", file=sys.stderr)
+        return 130
     finally:
         warnings.showwarning = previous
 
