@@ -238,8 +238,8 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
         else None
     )
     # as load_with_floor: every displacement against its test's mean unloaded scan (to its mean
-    # loaded scan with --loaded-repeats), the floor for it
-    ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded)
+    # loaded scan with --loaded-repeats, unless the creep check fails at ALPHA), the floor for it
+    ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded, ALPHA)
     t2 = time.perf_counter()
     ident = [m for m in ms if m.group == "identification"]
     valid = [m for m in ms if m.group == "validation"]
@@ -272,6 +272,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
         "fit_before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
         "fit_after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
         "floor_std": floor.component_std.tolist(),
+        "loaded_left_out": bool(floor.loaded_scatter is not None and floor.loaded_scatter.left_out),
         "time": {"measure": t1 - t0, "floor": t2 - t1, "diagnose": t3 - t2, "total": t3 - t0},
     }
 
@@ -512,6 +513,10 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
             + " | ".join(str(counts[c]) if counts[c] else "." for c in cols)
             + " |"
         )
+    if LOADED_REPEATS:  # the creep check's fallback (researcher/scan_mean.py): how often it was taken
+        left = sum(r.get("loaded_left_out", False) for rs in results.values() for r in rs)
+        total = sum(len(rs) for rs in results.values())
+        print(f"\nLoaded repeats left out by the creep check (alpha {ALPHA}): {left} of {total} trials.")
 
     print("\n## Per world: scoring, detection, validation gap\n")
     print("| world | correct | exact label | theory | detected (p<0.01) | median p "

@@ -3,7 +3,8 @@
 References: the closed form (loaded repeat k's frame is the loaded scan's moved by
 ``k * rate * d``, d the test's elastic displacement) on a noise-free dataset; the clean world's
 files (without loaded repeats the effect changes nothing); the campaign trial against the
-dataset; the creep check's F test (researcher/loaded_scatter.py) on noisy datasets.
+dataset; the creep check's F test (researcher/loaded_scatter.py) on noisy datasets; what the
+workflow does when the check fails (the loaded repeats left out: the test's own loaded scan).
 """
 
 import numpy as np
@@ -13,7 +14,7 @@ from conftest import paper_scenario_data
 from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed.experiment import identify_dataset, simulate
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.researcher.scan_mean import load_with_floor, loaded_scan_frames
+from vtestbed.researcher.scan_mean import against_scan_mean, load_with_floor, loaded_scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame
 
@@ -70,3 +71,44 @@ def test_the_creep_check_sees_a_creeping_block(rate, moved, tmp_path):
     root = simulate(scenario(rate, "creepcheck", 6, 1, 4, repeats=3, loaded_repeats=3), tmp_path / "d")
     check = load_with_floor(root)[2].loaded_scatter
     assert check.moved(0.01) is moved, check.to_dict()
+
+
+def test_a_failed_creep_check_measures_to_the_own_loaded_scan(tmp_path):
+    """A perfect scanner and 5 % creep per scan, 2 loaded repeats: the mean of the loaded scans lies
+    (0 + 1 + 2) / 3 * 5 % = 5 % of the deflection beyond the test's own loaded scan (closed form).
+    The check fails, so the displacements are the own scan's (to 1e-12 m) and the floor is scaled
+    for one loaded scan; averaged regardless (``creep_alpha=None``) they carry the 5 %."""
+    from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+
+    root = simulate(scenario(5.0, "creepleft", noise=False, repeats=1, loaded_repeats=2), tmp_path / "d")
+    _, own = load_measurements(root)
+    _, measured, floor = load_with_floor(root)
+    assert floor.loaded_scatter.left_out and (floor.reference_scans, floor.loaded_scans) == (2, 1)
+    assert "loaded repeats left out" in floor.summary()  # what `identify --reference mean` prints
+    for m, o in zip(measured, own, strict=True):
+        np.testing.assert_allclose(m.displacement, o.displacement, rtol=0, atol=1e-12)
+    unloaded, loaded = repeat_scan_frames(root, own), loaded_scan_frames(root, own)
+    single = noise_floor_from_frames(unloaded)
+    averaged, avg_floor = against_scan_mean(own, unloaded, single, loaded, creep_alpha=None)
+    assert not avg_floor.loaded_scatter.left_out and avg_floor.loaded_scans == 3
+    for m, o in zip(averaged, own, strict=True):
+        excess = m.displacement - o.displacement
+        np.testing.assert_allclose(
+            excess, 0.05 * o.displacement, rtol=0, atol=2e-3 * np.abs(o.displacement).max()
+        )
+
+
+def test_the_diagnosis_says_the_loaded_repeats_were_left_out(tmp_path):
+    """With the scanner's noise, 10 % creep per scan on 6 tests: report.json records the check with
+    ``left_out`` and one loaded scan per displacement; report.md says why in words."""
+    import json
+
+    from vtestbed import cli
+
+    root = simulate(scenario(10.0, "creepreport", 6, 1, 4, repeats=3, loaded_repeats=3), tmp_path / "d")
+    out = tmp_path / "diag"
+    assert cli.main(["diagnose", str(root), "--candidates", "none", "--out", str(out)]) == 0
+    floor = json.loads((out / "report.json").read_text())["noise_floor"]
+    assert floor["loaded_scatter"]["left_out"] and floor["loaded_scatter"]["p_value"] < 0.01
+    assert (floor["reference_scans"], floor["loaded_scans"]) == (4, 1)
+    assert "the loaded repeats are left out" in (out / "report.md").read_text()

@@ -160,9 +160,11 @@ def import_dataset(
     DatasetError
         Naming the file and the field or column: a manifest field, a stream (missing column,
         non-numeric value, window outside the stream, never settles), a cloud (unknown
-        extension, empty, wrong unit, listed twice), a reading beyond the sensor's range. Nothing
-        is written before every file has been read (the clouds are held in memory until then,
-        about 1.4 MB per scan of the simulated scanner's density).
+        extension, empty, wrong unit, listed twice), a reading beyond the sensor's range. An
+        error leaves no dataset behind: each cloud is converted as it is read (one cloud in
+        memory at a time, however many scans the lab took), and the converted clouds, with the
+        folders the import made for them, are removed again when a later file fails; setup.json,
+        tests.csv and the repeats files are written only after every file has been read.
     """
     spec = read_manifest(manifest, options)
     setup: DatasetSetup = spec["setup"]
@@ -170,20 +172,7 @@ def import_dataset(
     if (out / TESTS_FILE).exists():
         raise DatasetError(f"{out} already holds a dataset ({TESTS_FILE}); choose an empty or new folder")
     require_own_kind(out, (), "vtestbed dataset import", DatasetError)  # a sweep's or a run's folder
-    sensor = setup.sensor_spec
-    readings, clouds = {}, {}
-    for t in spec["tests"]:
-        for s in STATES:
-            stream = ft_stream.read_ft_csv(t[f"ft_{s}"], spec["torque_units"])
-            r = ft_stream.static_reading(stream, t[f"window_{s}_s"], spec["window_length"], options.settle_z)
-            try:
-                sensor.check(r.mean, f"{stream.path}: the static reading")
-            except VtestbedError as exc:
-                raise DatasetError(str(exc)) from None
-            readings[t["id"], s] = r
-            clouds[t["id"], s] = read_cloud(t[f"cloud_{s}"], spec["cloud_units"])
-            for k, path in enumerate(t[REPEAT_KEYS[s]], start=1):
-                clouds[t["id"], s, k] = read_cloud(path, spec["cloud_units"])
+    readings, clouds = _read_files(spec, out, setup, options.settle_z)
     write_setup(out, setup)
     states = [s for s in STATES if any(t[REPEAT_KEYS[s]] for t in spec["tests"])]
     with ExitStack() as files:
@@ -193,19 +182,54 @@ def import_dataset(
         for t in spec["tests"]:
             for s, repeats in repeat_writers.items():  # before the test's row, as a simulation
                 for k in range(1, len(t[REPEAT_KEYS[s]]) + 1):
-                    path = write_ply(repeat_cloud_path(out, t["id"], k, s), clouds[t["id"], s, k])
-                    repeats.append(RepeatRecord(t["id"], k, path))
-            paths = []
-            for s in STATES:
-                paths.append(write_ply(out / CLOUD_DIR / f"{t['id']}_{s}.ply", clouds[t["id"], s]))
+                    repeats.append(RepeatRecord(t["id"], k, clouds[t["id"], s, k]))
             record = TestRecord(t["id"], t["group"], t["q_deg"], readings[t["id"], "unloaded"].mean,
-                                readings[t["id"], "loaded"].mean, t["scanner"], *paths)  # fmt: skip
+                                readings[t["id"], "loaded"].mean, t["scanner"],
+                                *(clouds[t["id"], s] for s in STATES))  # fmt: skip
             writer.append(record)
     _write_windows(out / WINDOWS_FILE, spec["tests"], readings)
     read_setup(out)
     for s in states:
         read_repeats(out, state=s)  # the dataset's own checks on what was written
     return ImportResult(out, read_tests(out, sensor_range=setup.sensor_range), readings)
+
+
+def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> tuple[dict, dict]:
+    """Every stream reduced and every cloud converted into ``out/clouds`` as it is read.
+
+    Returns ``readings`` ``{(id, state): StaticReading}`` and the written clouds' paths
+    ``{(id, state): Path}``, ``{(id, state, k): Path}`` for repeat ``k``. On any error (or an
+    interruption) the clouds written so far and the folders made for them are removed.
+    """
+    made = [d for d in (out, out / CLOUD_DIR) if not d.exists()]
+    readings, clouds = {}, {}
+    try:
+        (out / CLOUD_DIR).mkdir(parents=True, exist_ok=True)
+        for t in spec["tests"]:
+            for s in STATES:
+                stream = ft_stream.read_ft_csv(t[f"ft_{s}"], spec["torque_units"])
+                window = t[f"window_{s}_s"]
+                r = ft_stream.static_reading(stream, window, spec["window_length"], settle_z)
+                try:
+                    setup.sensor_spec.check(r.mean, f"{stream.path}: the static reading")
+                except VtestbedError as exc:
+                    raise DatasetError(str(exc)) from None
+                readings[t["id"], s] = r
+                points = read_cloud(t[f"cloud_{s}"], spec["cloud_units"])
+                clouds[t["id"], s] = write_ply(out / CLOUD_DIR / f"{t['id']}_{s}.ply", points)
+                for k, path in enumerate(t[REPEAT_KEYS[s]], start=1):
+                    points = read_cloud(path, spec["cloud_units"])
+                    clouds[t["id"], s, k] = write_ply(repeat_cloud_path(out, t["id"], k, s), points)
+    except BaseException:
+        for path in clouds.values():
+            path.unlink(missing_ok=True)
+        for folder in reversed(made):  # only the folders this import made, and only if empty
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
+        raise
+    return readings, clouds
 
 
 def window_columns() -> list[str]:

@@ -69,7 +69,8 @@ def diagnose(
     if names:  # none (``names=()``, ``--candidates none``): the detection alone
         require_names(names, "--candidates")
     require_outside(statics, names, "--candidates")
-    setup, measurements, floor = load_with_floor(root)  # displacements against the mean unloaded scan
+    # displacements against the mean unloaded scan; loaded repeats left out if the creep check fails at alpha
+    setup, measurements, floor = load_with_floor(root, alpha)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]

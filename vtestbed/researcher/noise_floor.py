@@ -217,6 +217,7 @@ class NoiseFloor:
             "test_ids": list(self.test_ids),
             "reference_scans": self.reference_scans,
             "loaded_scans": self.loaded_scans,
+            "loaded_scatter": self.loaded_scatter and self.loaded_scatter.to_dict(),
         }
 
     def summary(self) -> str:
@@ -230,6 +231,12 @@ class NoiseFloor:
                 f"; displacements from the mean of {self.reference_scans} unloaded scans to the mean of "
                 f"{self.loaded_scans} loaded: covariance x {_scan_mean_scale(self.reference_scans, self.loaded_scans):.3g}"
                 if self.reference_scans > 1 or self.loaded_scans > 1
+                else ""
+            )
+            + (
+                f"; loaded repeats left out: they scatter up to {max(self.loaded_scatter.ratio):.2f} times the "
+                f"unloaded scans' variance (creep check p = {self.loaded_scatter.p_value:.2g})"
+                if self.loaded_scatter is not None and self.loaded_scatter.left_out
                 else ""
             )
         )

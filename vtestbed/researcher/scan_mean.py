@@ -16,7 +16,11 @@ member of that scatter, is not quite.
 A lab may scan the loaded block again too (``loaded_repeats.csv``, :mod:`vtestbed.dataset_repeats`):
 then the loaded end is averaged as well, ``m'`` loaded scans, and the noise is ``S (1 / m + 1 / m')``,
 0.25 of the paper's with 3 repeats at each end (4 times the information per test). The loaded
-repeats do not enter the floor (a loaded block may creep between scans).
+repeats do not enter the floor (a loaded block may creep between scans). They are checked for
+creep (:mod:`.loaded_scatter`): when they scatter more than the unloaded scans at level
+``creep_alpha`` (default :data:`CREEP_ALPHA`), the loaded end falls back to the test's own loaded
+scan (the first, taken with the F/T reading; the floor scaled for ``m' = 1``), because the mean of
+a creeping block's scans is a frame it reached only after the reading.
 
 Which tests: every test of the dataset against the mean of its first ``m`` unloaded scans, ``m``
 the fewest any test has (:func:`common_scan_count`), so that one floor, scaled by
@@ -42,12 +46,13 @@ from ..dataset import DatasetSetup, read_setup
 from ..dataset_repeats import read_repeats
 from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
-from .diagnose import require_floor
+from .diagnose import DEFAULT_ALPHA, require_floor
 from .loaded_scatter import loaded_scatter
 from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
 from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
 
 __all__ = [
+    "CREEP_ALPHA",
     "REFERENCES",
     "against_reference",
     "against_scan_mean",
@@ -62,6 +67,10 @@ __all__ = [
 # method, and `vtestbed identify`'s default), or "mean", the mean of the test's unloaded scans
 # (to the mean of its loaded scans when the dataset has loaded repeats).
 REFERENCES = ("scan", "mean")
+
+# The creep check's level: loaded repeats that scatter more than the unloaded scans at this level
+# are left out of the displacements (:func:`against_scan_mean`). The workflow's own level.
+CREEP_ALPHA = DEFAULT_ALPHA
 
 
 def mean_frame(frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -84,9 +93,10 @@ def against_scan_mean(
     frames_by_test: Mapping[str, Sequence[np.ndarray]],
     floor: NoiseFloor,
     loaded_frames: Mapping[str, Sequence[np.ndarray]] | None = None,
+    creep_alpha: float | None = CREEP_ALPHA,
 ) -> tuple[list[TestMeasurement], NoiseFloor]:
     """Every test's displacement from the mean of its first ``m`` unloaded scans (to the mean of
-    its first ``m'`` loaded scans, with loaded repeats), and the floor for it.
+    its first ``m'`` loaded scans, with loaded repeats that pass the creep check), and the floor for it.
 
     Parameters
     ----------
@@ -100,6 +110,9 @@ def against_scan_mean(
     loaded_frames : mapping test_id -> sequence of (4, 4) arrays, optional
         Per test, the frames of its loaded scan (first, ``TestMeasurement.frame_loaded``) and its
         loaded repeats (:func:`loaded_scan_frames`); None: the loaded scan alone.
+    creep_alpha : float or None
+        The creep check's level: loaded repeats whose scatter it rejects at this level are left
+        out (``m' = 1``, the test's own loaded scan). None: averaged whatever the check says.
 
     Returns
     -------
@@ -107,24 +120,24 @@ def against_scan_mean(
         ``frame_unloaded`` and ``frame_loaded`` the mean frames, ``displacement`` between them;
         the measurements themselves when ``m = m' = 1``.
     floor : NoiseFloor
-        ``floor.for_scan_mean(m, m')``: covariance times ``(1 / m + 1 / m') / 2``; with ``m' > 1``
-        its ``loaded_scatter`` says whether the loaded scans scatter as the unloaded ones
-        (:func:`.loaded_scatter.loaded_scatter`).
+        ``floor.for_scan_mean(m, m')``: covariance times ``(1 / m + 1 / m') / 2``; with loaded
+        repeats its ``loaded_scatter`` says whether the loaded scans scatter as the unloaded ones
+        (:func:`.loaded_scatter.loaded_scatter`) and whether they were left out for it.
     """
     m = common_scan_count(measurements, frames_by_test)
     m_loaded = common_scan_count(measurements, loaded_frames)
+    check = loaded_scatter(frames_by_test, loaded_frames) if m_loaded > 1 else None
+    if check is not None and creep_alpha is not None and check.moved(creep_alpha):
+        check, m_loaded = replace(check, left_out=True), 1  # the block crept: its own loaded scan
     if m == 1 and m_loaded == 1:
-        return list(measurements), floor
+        return list(measurements), floor if check is None else replace(floor, loaded_scatter=check)
     out = []
     for t in measurements:
         ref = mean_frame(list(frames_by_test[t.test_id])[:m]) if m > 1 else t.frame_unloaded
         loaded = mean_frame(list(loaded_frames[t.test_id])[:m_loaded]) if m_loaded > 1 else t.frame_loaded
         moved = displacement_in_block_frame(ref, loaded)
         out.append(replace(t, frame_unloaded=ref, frame_loaded=loaded, displacement=moved))
-    scaled = floor.for_scan_mean(m, m_loaded)
-    if m_loaded > 1:  # the loaded scans averaged: do they scatter as the unloaded ones? (creep)
-        scaled = replace(scaled, loaded_scatter=loaded_scatter(frames_by_test, loaded_frames))
-    return out, scaled
+    return out, replace(floor.for_scan_mean(m, m_loaded), loaded_scatter=check)
 
 
 def loaded_repeat_frames(
@@ -165,19 +178,22 @@ def loaded_scan_frames(
     return frames
 
 
-def load_with_floor(root: str | Path) -> tuple[DatasetSetup, list[TestMeasurement], NoiseFloor]:
+def load_with_floor(
+    root: str | Path, creep_alpha: float | None = CREEP_ALPHA
+) -> tuple[DatasetSetup, list[TestMeasurement], NoiseFloor]:
     """A dataset as the discrepancy workflow measures it: (setup, measurements, floor).
 
     The tests reduced (:func:`.measure.load_measurements`), the repeat scans' noise floor
     (required: :func:`.diagnose.require_floor` says how to record them), and every displacement
     against its test's mean unloaded frame (to its mean loaded frame when the dataset has
-    loaded repeats) with the floor for it (:func:`against_scan_mean`).
+    loaded repeats that pass the creep check at ``creep_alpha``) with the floor for it
+    (:func:`against_scan_mean`).
     """
     setup, measurements = load_measurements(root)
     frames = repeat_scan_frames(root, measurements)
     floor = require_floor(None if frames is None else noise_floor_from_frames(frames), root)
     loaded = loaded_scan_frames(root, measurements)
-    measurements, floor = against_scan_mean(measurements, frames, floor, loaded)
+    measurements, floor = against_scan_mean(measurements, frames, floor, loaded, creep_alpha)
     return setup, measurements, floor
 
 
@@ -188,11 +204,13 @@ def against_reference(
     floor: NoiseFloor | None,
     source: str | Path = "the dataset",
     loaded_frames: Mapping[str, Sequence[np.ndarray]] | None = None,
+    creep_alpha: float | None = CREEP_ALPHA,
 ) -> tuple[list[TestMeasurement], NoiseFloor | None]:
     """The measurements and floor for ``reference`` (one of :data:`REFERENCES`).
 
     ``"scan"`` returns them unchanged (the paper's: one scan at each end). ``"mean"`` is
-    :func:`against_scan_mean` (with ``loaded_frames``, the loaded end averaged too), asked for
+    :func:`against_scan_mean` (with ``loaded_frames``, the loaded end averaged too unless the
+    creep check rejects them at ``creep_alpha``), asked for
     explicitly: a dataset without repeat scans (``frames_by_test`` None), or with a test that has
     none, raises a DatasetError naming ``source`` and those tests, instead of falling back to
     the single scan as the discrepancy workflow does.
@@ -218,4 +236,4 @@ def against_reference(
             f"{' ...' if len(lacking) > 10 else ''} ha{'ve' if len(lacking) > 1 else 's'} no repeat "
             "scan in repeats.csv: record at least one for every test, or use reference 'scan' (the paper's)"
         )
-    return against_scan_mean(measurements, frames_by_test, floor, loaded_frames)
+    return against_scan_mean(measurements, frames_by_test, floor, loaded_frames, creep_alpha)
