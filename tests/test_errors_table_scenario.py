@@ -130,7 +130,39 @@ cloud_unloaded = "u.pcd"
 cloud_loaded = "l.pcd"
 repeat_clouds = ["r1.pcd", "u.pcd"]
 """
+# two tests whose clouds would share a dataset file: T001's loaded repeat 1 and T001_loaded's repeat 1
+NAMES_ALIKE = REPEAT_OWN_SCAN.replace(
+    'repeat_clouds = ["r1.pcd", "u.pcd"]', 'loaded_repeat_clouds = ["l1.pcd"]'
+) + (
+    REPEAT_OWN_SCAN.split("[[tests]]")[1]
+    .replace('"T001"', '"T001_loaded"')
+    .replace('"u.pcd"', '"u2.pcd"')
+    .replace('"l.pcd"', '"l2.pcd"')
+    .replace('["r1.pcd", "u2.pcd"]', '["r2.pcd"]')
+    .join(["[[tests]]", ""])
+)
 ONE_LINK = '<robot name="x"><link name="a"/></robot>'
+
+
+def _cloud_already_there(ctx):
+    """A complete manifest whose output folder already holds one of the clouds it would write:
+    refused before any stream or cloud is read, the file kept."""
+    from test_dataset import _setup
+
+    from vtestbed.dataset import write_setup
+    from vtestbed.lab import LabSetup
+
+    write_setup(ctx.tmp, _setup(LabSetup()))
+    manifest = ctx.tmp / "lab.toml"
+    manifest.write_text(REPEAT_OWN_SCAN.replace('repeat_clouds = ["r1.pcd", "u.pcd"]\n', ""))
+    kept = ctx.tmp / "o" / "clouds" / "T001_unloaded.ply"
+    kept.parent.mkdir(parents=True)
+    kept.write_bytes(b"kept")
+    line = cli(ctx, ["dataset", "import", str(manifest), "--out", str(ctx.tmp / "o")])
+    assert kept.read_bytes() == b"kept"
+    return line
+
+
 TWICE = [{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 2}]
 
 
@@ -209,6 +241,10 @@ CASES = {
     "manifest-repeat-own-scan": given(
         "lab.toml", REPEAT_OWN_SCAN, "dataset", "import", "{file}", "--out", "{tmp}/o"
     ),
+    "manifest-cloud-names-alike": given(
+        "lab.toml", NAMES_ALIKE, "dataset", "import", "{file}", "--out", "{tmp}/o"
+    ),
+    "import-cloud-exists": _cloud_already_there,
     "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
     "diagnose-candidate-twice": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"

@@ -100,7 +100,8 @@ def test_a_failed_creep_check_measures_to_the_own_loaded_scan(tmp_path):
 
 def test_the_diagnosis_says_the_loaded_repeats_were_left_out(tmp_path):
     """With the scanner's noise, 10 % creep per scan on 6 tests: report.json records the check with
-    ``left_out`` and one loaded scan per displacement; report.md says why in words."""
+    ``left_out`` and one loaded scan per displacement; report.md says why in words. The check runs
+    at the diagnosis's alpha."""
     import json
 
     from vtestbed import cli
@@ -112,3 +113,9 @@ def test_the_diagnosis_says_the_loaded_repeats_were_left_out(tmp_path):
     assert floor["loaded_scatter"]["left_out"] and floor["loaded_scatter"]["p_value"] < 0.01
     assert (floor["reference_scans"], floor["loaded_scans"]) == (4, 1)
     assert "the loaded repeats are left out" in (out / "report.md").read_text()
+    # the check runs at diagnose's own alpha: at 1e-30 (its p is about 3e-25 here) they are kept
+    from vtestbed.researcher.discrepancy import diagnose
+
+    kept = diagnose(root, alpha=1e-30, names=())["noise_floor"]
+    assert not kept["loaded_scatter"]["left_out"] and kept["loaded_scatter"]["p_value"] > 1e-30
+    assert (kept["reference_scans"], kept["loaded_scans"]) == (4, 4)

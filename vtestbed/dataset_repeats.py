@@ -10,8 +10,9 @@ noise:
   (:mod:`vtestbed.researcher.noise_floor`) and the mean unloaded frame
   (:mod:`vtestbed.researcher.scan_mean`).
 - ``loaded_repeats.csv``: further scans of the **loaded** block, wire still tensioned. The mean
-  scan displacements average them too; they do not enter the floor (a block under load may
-  creep between scans, which the unloaded repeats cannot do).
+  scan displacements average them too, unless the creep check rejects them
+  (:mod:`vtestbed.researcher.loaded_scatter`); they do not enter the floor (a block under load
+  may creep between scans, which the unloaded repeats cannot do).
 
 A simulation writes a test's repeats before its tests.csv row, which marks the test finished.
 """

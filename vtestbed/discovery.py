@@ -147,11 +147,13 @@ class LabCheck:
         return self.refused[key] is None
 
 
-def _researcher_view(root: Path):
-    """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms."""
+def _researcher_view(root: Path, alpha: float):
+    """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms,
+    measured as ``diagnose`` at ``alpha`` measures them."""
     from .robots import load_robot
 
-    setup, ms, floor = load_with_floor(root)  # as diagnose measures: against the mean unloaded scan
+    # as diagnose measures: against the mean unloaded scan, the creep check at the same alpha
+    setup, ms, floor = load_with_floor(root, alpha)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
     ctx = ModelContext([m for m in ms if m.group == "identification"], setup, kin, ExactStatics(kin, setup))
@@ -320,7 +322,7 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     from .experiment import simulate
 
     # The researcher's side: the dataset, its floor, the lab's layout, a nominal rig; never the world.
-    ctx, white, pool = _researcher_view(dataset)
+    ctx, white, pool = _researcher_view(dataset, options["alpha"])
     rng = np.random.default_rng(np.random.SeedSequence(original.seed, spawn_key=(POOL_STREAM, k - 1)))
     tests = disc.test_pool(original.robot, original.lab, rng, options["n_poses"], options["tensions"])
     refused_before = sum(v is not None for v in lab.refused.values())
@@ -357,7 +359,7 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     _extend_dataset(dataset, folder / "dataset", combined)
     ds = simulate(combined, folder / "dataset", progress=progress)
     report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose", rank_by=options["rank_by"])
-    ctx_k, white_k, pool_k = _researcher_view(ds)
+    ctx_k, white_k, pool_k = _researcher_view(ds, options["alpha"])
     entry |= {"measured_after": measured_separation(ctx_k, white_k, pool_k, rivals), "named": report["named"],
               "confusable": report["confusable"], "validation_gap": validation_summary(report)}  # fmt: skip
     return entry, combined, ds, report

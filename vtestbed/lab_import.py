@@ -43,10 +43,17 @@ from .dataset_repeats import (
     RepeatRecord,
     RepeatWriter,
     read_repeats,
-    repeat_cloud_path,
 )
 from .errors import DatasetError, VtestbedError
-from .lab_manifest import CLOUD_UNITS, DEFAULT_OPTIONS, REPEAT_KEYS, STATES, ImportOptions, read_manifest
+from .lab_manifest import (
+    CLOUD_UNITS,
+    DEFAULT_OPTIONS,
+    REPEAT_KEYS,
+    STATES,
+    ImportOptions,
+    dataset_cloud_path,
+    read_manifest,
+)
 from .output_folders import require_own_kind
 from .ply import MAX_CLOUD_COORDINATE_M, read_ply, write_ply
 
@@ -160,11 +167,13 @@ def import_dataset(
     DatasetError
         Naming the file and the field or column: a manifest field, a stream (missing column,
         non-numeric value, window outside the stream, never settles), a cloud (unknown
-        extension, empty, wrong unit, listed twice), a reading beyond the sensor's range. An
-        error leaves no dataset behind: each cloud is converted as it is read (one cloud in
-        memory at a time, however many scans the lab took), and the converted clouds, with the
-        folders the import made for them, are removed again when a later file fails; setup.json,
-        tests.csv and the repeats files are written only after every file has been read.
+        extension, empty, wrong unit, listed twice), a reading beyond the sensor's range, a cloud
+        file already in ``out/clouds``. A refused input leaves no dataset behind: each cloud is
+        converted as it is read (one cloud in memory at a time, however many scans the lab
+        took), and the converted clouds, with the folders the import made for them, are removed
+        again when a later file fails; setup.json, tests.csv and the repeats files are written
+        only after every file has been read (a failure while writing those, a full disk, can
+        leave them partly written).
     """
     spec = read_manifest(manifest, options)
     setup: DatasetSetup = spec["setup"]
@@ -172,6 +181,7 @@ def import_dataset(
     if (out / TESTS_FILE).exists():
         raise DatasetError(f"{out} already holds a dataset ({TESTS_FILE}); choose an empty or new folder")
     require_own_kind(out, (), "vtestbed dataset import", DatasetError)  # a sweep's or a run's folder
+    _require_new_clouds(spec, out)
     readings, clouds = _read_files(spec, out, setup, options.settle_z)
     write_setup(out, setup)
     states = [s for s in STATES if any(t[REPEAT_KEYS[s]] for t in spec["tests"])]
@@ -194,14 +204,29 @@ def import_dataset(
     return ImportResult(out, read_tests(out, sensor_range=setup.sensor_range), readings)
 
 
+def _require_new_clouds(spec: dict, out: Path) -> None:
+    """The import writes only new cloud files: one already there may be a lab's own scan, or an
+    earlier import's, and an error would remove it with the clouds this import wrote."""
+    for t in spec["tests"]:
+        for s in STATES:
+            for k in range(len(t[REPEAT_KEYS[s]]) + 1):
+                if (path := dataset_cloud_path(out, t["id"], s, k)).exists():
+                    raise DatasetError(
+                        f"{path} already exists: dataset import writes only new files (it would replace "
+                        "a cloud, or a scan kept there); choose a new or empty --out folder"
+                    )
+
+
 def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> tuple[dict, dict]:
     """Every stream reduced and every cloud converted into ``out/clouds`` as it is read.
 
     Returns ``readings`` ``{(id, state): StaticReading}`` and the written clouds' paths
     ``{(id, state): Path}``, ``{(id, state, k): Path}`` for repeat ``k``. On any error (or an
-    interruption) the clouds written so far and the folders made for them are removed.
+    interruption) the clouds written so far (none of them there before:
+    :func:`_require_new_clouds`), a half-written one included, and the folders made for them are
+    removed.
     """
-    made = [d for d in (out, out / CLOUD_DIR) if not d.exists()]
+    made = [d for d in (out / CLOUD_DIR, *(out / CLOUD_DIR).parents) if not d.exists()]
     readings, clouds = {}, {}
     try:
         (out / CLOUD_DIR).mkdir(parents=True, exist_ok=True)
@@ -215,15 +240,17 @@ def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> 
                 except VtestbedError as exc:
                     raise DatasetError(str(exc)) from None
                 readings[t["id"], s] = r
-                points = read_cloud(t[f"cloud_{s}"], spec["cloud_units"])
-                clouds[t["id"], s] = write_ply(out / CLOUD_DIR / f"{t['id']}_{s}.ply", points)
-                for k, path in enumerate(t[REPEAT_KEYS[s]], start=1):
+                for k, path in enumerate([t[f"cloud_{s}"], *t[REPEAT_KEYS[s]]]):
                     points = read_cloud(path, spec["cloud_units"])
-                    clouds[t["id"], s, k] = write_ply(repeat_cloud_path(out, t["id"], k, s), points)
+                    key = (t["id"], s, k) if k else (t["id"], s)
+                    clouds[key] = dataset_cloud_path(
+                        out, t["id"], s, k
+                    )  # before writing: a half-written one too
+                    write_ply(clouds[key], points)
     except BaseException:
         for path in clouds.values():
             path.unlink(missing_ok=True)
-        for folder in reversed(made):  # only the folders this import made, and only if empty
+        for folder in made:  # only the folders this import made (innermost first), and only if empty
             try:
                 folder.rmdir()
             except OSError:

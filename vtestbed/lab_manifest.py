@@ -16,16 +16,24 @@ from pathlib import Path
 import numpy as np
 
 from . import ft_stream
-from .dataset import GROUPS, DatasetSetup, parse_setup
+from .dataset import CLOUD_DIR, GROUPS, DatasetSetup, parse_setup
 from .dataset_checks import SCANNER_POSITION_RANGE_M, SCANNER_ROTVEC_RANGE_RAD
-from .dataset_repeats import REPEATS_RANGE
+from .dataset_repeats import REPEATS_RANGE, repeat_cloud_path
 from .errors import DatasetError
 from .files import read_json, read_toml
 from .robots import load_robot
 from .schema import Fields
 from .transforms import homogeneous, matrix_from_rotation_vector
 
-__all__ = ["CLOUD_UNITS", "DEFAULT_OPTIONS", "REPEAT_KEYS", "STATES", "ImportOptions", "read_manifest"]
+__all__ = [
+    "CLOUD_UNITS",
+    "DEFAULT_OPTIONS",
+    "REPEAT_KEYS",
+    "STATES",
+    "ImportOptions",
+    "dataset_cloud_path",
+    "read_manifest",
+]
 
 CLOUD_UNITS = ("m", "mm")
 STATES = ("unloaded", "loaded")
@@ -166,6 +174,35 @@ def _clouds_once(f: Fields, tests: list[dict]) -> None:
                 first[key] = where
 
 
+def dataset_cloud_path(root: str | Path, test_id: str, state: str, repeat: int = 0) -> Path:
+    """Where the import writes a cloud: the test's own scan of ``state`` (``repeat`` 0,
+    ``clouds/<id>_<state>.ply``) or its repeat ``repeat`` (:func:`.dataset_repeats.repeat_cloud_path`)."""
+    if repeat:
+        return repeat_cloud_path(root, test_id, repeat, state)
+    return Path(root) / CLOUD_DIR / f"{test_id}_{state}.ply"
+
+
+def _dataset_names_unique(f: Fields, tests: list[dict]) -> None:
+    """Two clouds must not be written to one dataset file: test ``X_loaded``'s repeat 1 and test
+    ``X``'s loaded repeat 1 are both ``clouds/X_loaded_repeat1.ply``, and the second would replace
+    the first in silence."""
+    first = {}
+    for i, t in enumerate(tests):
+        for s in STATES:
+            fields = [(f"cloud_{s}", 0)] + [
+                (f"{REPEAT_KEYS[s]}[{k - 1}]", k) for k in range(1, len(t[REPEAT_KEYS[s]]) + 1)
+            ]
+            for name, k in fields:
+                file, where = dataset_cloud_path("", t["id"], s, k).name, f"tests[{i}].{name}"
+                if file in first:
+                    raise f.error(
+                        where,
+                        f"would be written to the dataset's {CLOUD_DIR}/{file}, as {first[file]} is: choose "
+                        "test ids that do not end in another test's id followed by '_loaded' or '_repeat'",
+                    )
+                first[file] = where
+
+
 def read_manifest(path: str | Path, options: ImportOptions = DEFAULT_OPTIONS) -> dict:
     """The manifest checked field by field, options applied (see docs/lab_data.md).
 
@@ -201,6 +238,7 @@ def read_manifest(path: str | Path, options: ImportOptions = DEFAULT_OPTIONS) ->
     if dup:
         raise f.error("tests", f"duplicate ids {dup}")
     _clouds_once(f, parsed)
+    _dataset_names_unique(f, parsed)
     setup = _setup(f, base, data["setup"])
     load_robot(setup.robot)  # a known robot, or the valid names
     return {"setup": setup, "cloud_units": cloud_units, "torque_units": torque, "window_length": length,

@@ -154,7 +154,7 @@ def register(sub) -> None:
         help="what each displacement is measured against: 'scan', the test's own unloaded scan (the "
         "paper's; the default), or 'mean', the mean of the test's unloaded scans (its own and its repeats: "
         "1.6x the information per test with 3 repeats; needs repeat scans of every test; with loaded_repeats.csv "
-        "the loaded end is averaged too)",
+        "the loaded end is averaged too, unless the creep check says the loaded block moved between its scans)",
     )
     p.add_argument(
         "--model",

@@ -101,7 +101,8 @@ class NoiseFloor:
         ``m'`` after :meth:`for_scan_mean` with loaded repeats.
     loaded_scatter : LoadedScatter or None
         Whether the loaded repeats scatter like the unloaded ones (:mod:`.loaded_scatter`, a
-        check for creep), set with the mean loaded frames; None without loaded repeats.
+        check for creep) and whether they were left out for it, set by
+        :func:`.scan_mean.against_scan_mean`; None without loaded repeats.
     """
 
     covariance: np.ndarray
