@@ -79,7 +79,11 @@ class Hypothesis:
         """(6 T, n + p) the model's columns on ``ctx``'s tests, bilinear terms at its compliances."""
         ms = ctx.measurements
         a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
-        return np.hstack([a, *(t.columns(ctx, self.compliance) for t in self.terms)])
+        cols, k = [a], a.shape[1]
+        for t in self.terms:  # a secant term at its own fitted parameters (Candidate.design)
+            cols.append(t.design(ctx, self.compliance, self.x[k : k + len(t.params)]))
+            k += cols[-1].shape[1]
+        return np.hstack(cols)
 
     def predict(self, ctx: ModelContext) -> np.ndarray:
         """(6 T,) predicted displacements [m, rad] (linear model plus the terms)."""

@@ -146,7 +146,8 @@ def stand_in_overlap(
     def project(x):
         return x - u @ (u.T @ x)
 
-    pattern = project(white(term.columns(ctx, c)) @ np.array(list(fit.theta[term.label].values())))
+    theta = np.array(list(fit.theta[term.label].values()))
+    pattern = project(white(term.design(ctx, c, theta)) @ theta)
     norm = float(pattern @ pattern)
     out = {}
     for cand in others:
@@ -352,7 +353,7 @@ def validation_gap(ctx: ModelContext, white: Whitener, fit: ModelFit, terms: lis
     """Validation tests' prediction error as a ratio to the noise floor (1 = as good as the noise)."""
     if ctx.n_tests == 0:
         return {}
-    cols = [t.columns(ctx, fit.compliance) for t in terms]
+    cols = [t.design(ctx, fit.compliance, list(fit.theta[t.label].values())) for t in terms]
     ms = ctx.measurements
     a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
     x_mat = np.hstack([a, *cols]) if cols else a

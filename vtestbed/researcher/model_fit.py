@@ -103,27 +103,37 @@ class Whitener:
         return np.einsum("ij,tj...->ti...", self.inv_chol, blocks).reshape(shape)
 
 
-def fit_model(ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int = 4) -> ModelFit:
+def fit_model(
+    ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int | None = None
+) -> ModelFit:
     """Fit the compliances and the terms' parameters by GLS against the noise floor.
 
     Bilinear terms, and the clean world's exact statics when ``ctx.statics`` is set (its gap to the
     paper's model is subtracted from the measurements), are re-evaluated at the updated
-    compliances ``iterations`` times at most.
+    compliances ``iterations`` times at most (default 4; 8 with a term nonlinear in its own
+    parameters, whose secant columns are re-evaluated at the updated parameters too:
+    :meth:`.Candidate.design`).
     """
     ms = ctx.measurements
     a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
     d = np.concatenate([m.displacement for m in ms])
     n = a.shape[1]
     c = _lstsq(white(a), white(d))[0]
-    cols, gap = [], np.zeros_like(d)
+    cols, gap, params = [], np.zeros_like(d), {}
     repeat = any(t.bilinear for t in terms) or ctx.statics is not None
+    if iterations is None:
+        iterations = 8 if any(t.secant for t in terms) else 4
     for _ in range(iterations if repeat else 1):
         if ctx.statics is not None:
             gap = ctx.statics.gap(ms, c)
-        cols = [t.columns(ctx, c) for t in terms]
+        cols = [t.design(ctx, c, params.get(t.label)) for t in terms]
         x_mat = np.hstack([a, *cols]) if cols else a
         x, cov, rank, basis = _lstsq(white(x_mat), white(d - gap))
         c = x[:n]
+        k = n
+        for t, block in zip(terms, cols):  # each term's estimate, for a secant term's next columns
+            params[t.label] = x[k : k + block.shape[1]]
+            k += block.shape[1]
     x_mat = np.hstack([a, *cols]) if cols else a
     residuals = d - gap - x_mat @ x
     white_residuals = white(residuals)
