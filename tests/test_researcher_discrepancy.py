@@ -386,8 +386,8 @@ def test_a_hardening_joint_is_fitted_exactly_not_to_first_order(paper, truth):
 def test_the_secant_column_is_the_cubic_springs_deflection(paper):
     """The cubic spring's deflection against numpy's polynomial roots; the secant column times k3
     against the deflection change those roots give; at a vanishing k3 the secant is the
-    first-order column (its derivative at zero)."""
-    from vtestbed.researcher.candidates import cubic_deflection
+    first-order column (its derivative at zero); the tangent against implicit differentiation."""
+    from vtestbed.researcher.cubic_spring import cubic_deflection
 
     k, k3 = 2.0e6, 3.0e10
     tau = np.array([-4000.0, -150.0, 0.0, 900.0, 5000.0])
@@ -412,3 +412,10 @@ def test_the_secant_column_is_the_cubic_springs_deflection(paper):
         term.design(ctx, c, [k3])[:, 0] * k3, expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max()
     )
     np.testing.assert_allclose(term.design(ctx, c, [1e-3])[:, 0], term.design(ctx, c)[:, 0], rtol=1e-7)
+    # the tangent: d/dk3 of the deflection change, with dx/dk3 = -x^3 / (k + 3 k3 x^2) (implicit)
+    x0, x1 = solve(tau_g), solve(tau_g + tau_w)
+    slope = -(x1**3) / (k + 3 * k3 * x1**2) + x0**3 / (k + 3 * k3 * x0**2)
+    expected = np.concatenate([m.jacobian[:, 1] * d for m, d in zip(ms, slope)])
+    tangent = term.tangent(ctx, c, [k3])[:, 0]
+    np.testing.assert_allclose(tangent, expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
+    assert np.linalg.norm(tangent) < 0.95 * np.linalg.norm(term.design(ctx, c, [k3])[:, 0])  # not the secant

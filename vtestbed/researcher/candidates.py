@@ -22,6 +22,7 @@ import pinocchio as pin
 
 from ..dataset import DatasetSetup
 from ..errors import UnknownNameError
+from .cubic_spring import NONLINEAR_SECANT_LIMIT, cubic_deflection
 from .kinematics import ArmKinematics
 from .measure import TestMeasurement, wrench_at_block
 from .statics import CLEAN_WORLD_TERMS, ExactStatics
@@ -48,6 +49,23 @@ class Candidate:
         if self.secant and params is not None:
             return self.columns(ctx, compliance, np.asarray(params, dtype=float))
         return self.columns(ctx, compliance)
+
+    def tangent(self, ctx: ModelContext, compliance, params) -> np.ndarray:
+        """(6 T, p) ``d (design @ params) / d params`` at ``params``: the columns the parameters'
+        covariance and the tests' linearisation take. A linear term's columns; a ``secant`` term's
+        differ from its secant by the curvature (0.89 of its norm for joint 2's realistic
+        hardening), by central differences of relative step 1e-4."""
+        theta = np.asarray(params, dtype=float)
+        if not self.secant or not np.any(theta):
+            return self.design(ctx, compliance)  # at zero the secant is the derivative
+        out = []
+        for i in range(len(theta)):
+            step = np.zeros_like(theta)
+            step[i] = 1e-4 * abs(theta[i]) if theta[i] else 1e-4 * np.max(np.abs(theta))
+            plus, minus = theta + step, theta - step
+            out.append((self.design(ctx, compliance, plus) @ plus - self.design(ctx, compliance, minus) @ minus)
+                       / (2 * step[i]))  # fmt: skip
+        return np.column_stack(out)
 
 
 @dataclass
@@ -127,24 +145,6 @@ def _joint_coupling(i: int, j: int) -> Candidate:
     return Candidate(
         "joint_coupling", f"joint_coupling({i},{j})", (f"compliance_{i}{j}_rad_per_Nm",), columns
     )
-
-
-# Largest change of the tangent stiffness, 3 k3 x^2 / k, at which the nonlinear joint's column is
-# the exact secant (the realistic k3 changes it by about a tenth at 2 mrad).
-NONLINEAR_SECANT_LIMIT = 0.5
-
-
-def cubic_deflection(k: float, k3: float, tau: np.ndarray) -> np.ndarray:
-    """Deflection ``x`` [rad] of a spring ``k x + k3 x^3 = tau`` (tau [N*m], array): Newton from
-    ``tau / k`` to round-off, on the stable branch (``k + 3 k3 x^2 > 0``); NaN where there is none
-    (a softening spring past its limit load)."""
-    tau = np.asarray(tau, dtype=float)
-    x = tau / k
-    with np.errstate(all="ignore"):
-        for _ in range(40):
-            x = x - (k * x + k3 * x**3 - tau) / (k + 3.0 * k3 * x**2)
-        converged = np.abs(k * x + k3 * x**3 - tau) <= 1e-12 * (np.abs(tau) + k * np.abs(x))
-        return np.where(np.isfinite(x) & converged & (k + 3.0 * k3 * x**2 > 0), x, np.nan)
 
 
 def _nonlinear_joint(joint: int, gravity) -> Candidate:
