@@ -386,7 +386,7 @@ def test_a_hardening_joint_is_fitted_exactly_not_to_first_order(paper, truth):
 def test_the_secant_column_is_the_cubic_springs_deflection(paper):
     """The cubic spring's deflection against numpy's polynomial roots; the secant column times k3
     against the deflection change those roots give; at a vanishing k3 the secant is the
-    first-order column (its derivative at zero); the tangent against implicit differentiation."""
+    first-order column (its derivative at zero)."""
     from vtestbed.researcher.cubic_spring import cubic_deflection
 
     k, k3 = 2.0e6, 3.0e10
@@ -412,10 +412,29 @@ def test_the_secant_column_is_the_cubic_springs_deflection(paper):
         term.design(ctx, c, [k3])[:, 0] * k3, expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max()
     )
     np.testing.assert_allclose(term.design(ctx, c, [1e-3])[:, 0], term.design(ctx, c)[:, 0], rtol=1e-7)
-    # the tangent: d/dk3 of the deflection change, with dx/dk3 = -x^3 / (k + 3 k3 x^2) (implicit)
-    x0, x1 = solve(tau_g), solve(tau_g + tau_w)
-    slope = -(x1**3) / (k + 3 * k3 * x1**2) + x0**3 / (k + 3 * k3 * x0**2)
-    expected = np.concatenate([m.jacobian[:, 1] * d for m, d in zip(ms, slope)])
-    tangent = term.tangent(ctx, c, [k3])[:, 0]
-    np.testing.assert_allclose(tangent, expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
-    assert np.linalg.norm(tangent) < 0.95 * np.linalg.norm(term.design(ctx, c, [k3])[:, 0])  # not the secant
+
+
+@pytest.mark.parametrize("k3", [7.5e9, 1.5e10])
+def test_the_hardening_terms_std_is_its_monte_carlo_spread(paper, k3):
+    """300 noise draws (the scanner's floor, known) on noise-free world data with joint 2
+    hardening at its realistic size and twice it: the reported std of k3 is the spread of the
+    estimates within 12 % (measured 0.96 and 0.97; a covariance from the model's derivative
+    instead of its secant reported 1.11 and 1.25), and the estimate is unbiased within 3 standard
+    errors."""
+    from vtestbed.world.effects import NonlinearJoint
+
+    setup, kin, clean = world_measurements(paper, (NonlinearJoint(joint=2, k3_Nm_per_rad3=k3),), n=20)
+    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=10**6, n_tests=20))
+    (term,) = [c for c in candidates(kin) if c.label == "nonlinear_joint(2)"]
+    rng, est, std = np.random.default_rng(11), [], []
+    for _ in range(300):
+        noisy = [Measurement(m.test_id, m.group, m.q, m.wrench, m.displacement + rng.normal(0, SIGMA), m.jacobian,
+                             m.frame_unloaded, m.frame_loaded) for m in clean]  # fmt: skip
+        fit = fit_model(ModelContext(noisy, setup, kin), white, [term])
+        est.append(fit.theta[term.label]["k3_Nm_per_rad3"])
+        std.append(fit.theta_std[term.label]["k3_Nm_per_rad3"])
+    spread = np.std(est, ddof=1)
+    assert np.mean(std) / spread == pytest.approx(1.0, abs=0.12)
+    assert (
+        abs(np.mean(est) - k3) < 3 * spread / np.sqrt(len(est)) + 0.03 * k3
+    )  # 3 % of the paper model's gravity bias

@@ -50,23 +50,6 @@ class Candidate:
             return self.columns(ctx, compliance, np.asarray(params, dtype=float))
         return self.columns(ctx, compliance)
 
-    def tangent(self, ctx: ModelContext, compliance, params) -> np.ndarray:
-        """(6 T, p) ``d (design @ params) / d params`` at ``params``: the columns the parameters'
-        covariance and the tests' linearisation take. A linear term's columns; a ``secant`` term's
-        differ from its secant by the curvature (0.89 of its norm for joint 2's realistic
-        hardening), by central differences of relative step 1e-4."""
-        theta = np.asarray(params, dtype=float)
-        if not self.secant or not np.any(theta):
-            return self.design(ctx, compliance)  # at zero the secant is the derivative
-        out = []
-        for i in range(len(theta)):
-            step = np.zeros_like(theta)
-            step[i] = 1e-4 * abs(theta[i]) if theta[i] else 1e-4 * np.max(np.abs(theta))
-            plus, minus = theta + step, theta - step
-            out.append((self.design(ctx, compliance, plus) @ plus - self.design(ctx, compliance, minus) @ minus)
-                       / (2 * step[i]))  # fmt: skip
-        return np.column_stack(out)
-
 
 @dataclass
 class ModelContext:

@@ -137,10 +137,6 @@ def fit_model(
     x_mat = np.hstack([a, *cols]) if cols else a
     residuals = d - gap - x_mat @ x
     white_residuals = white(residuals)
-    if any(t.secant for t in terms):  # the covariance, tests and PRESS from the model's derivative
-        tangents = [t.tangent(ctx, c, params[t.label]) for t in terms]
-        x_mat = np.hstack([a, *tangents])
-        _, cov, rank, basis = _lstsq(white(x_mat), white(d - gap))
     chi2 = float(np.sum(white_residuals**2))
     theta, theta_std, k = {}, {}, n
     std = np.sqrt(np.diag(cov))
