@@ -243,9 +243,8 @@ def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> 
                 for k, path in enumerate([t[f"cloud_{s}"], *t[REPEAT_KEYS[s]]]):
                     points = read_cloud(path, spec["cloud_units"])
                     key = (t["id"], s, k) if k else (t["id"], s)
-                    clouds[key] = dataset_cloud_path(
-                        out, t["id"], s, k
-                    )  # before writing: a half-written one too
+                    # recorded before writing, so that a half-written one is removed too
+                    clouds[key] = dataset_cloud_path(out, t["id"], s, k)
                     write_ply(clouds[key], points)
     except BaseException:
         for path in clouds.values():
