@@ -52,6 +52,7 @@ from .lab_manifest import (
     STATES,
     ImportOptions,
     dataset_cloud_path,
+    manifest_clouds,
     read_manifest,
 )
 from .output_folders import require_own_kind
@@ -207,14 +208,12 @@ def import_dataset(
 def _require_new_clouds(spec: dict, out: Path) -> None:
     """The import writes only new cloud files: one already there may be a lab's own scan, or an
     earlier import's, and an error would remove it with the clouds this import wrote."""
-    for t in spec["tests"]:
-        for s in STATES:
-            for k in range(len(t[REPEAT_KEYS[s]]) + 1):
-                if (path := dataset_cloud_path(out, t["id"], s, k)).exists():
-                    raise DatasetError(
-                        f"{path} already exists: dataset import writes only new files (it would replace "
-                        "a cloud, or a scan kept there); choose a new or empty --out folder"
-                    )
+    for _, t, s, k, _, _ in manifest_clouds(spec["tests"]):
+        if (path := dataset_cloud_path(out, t["id"], s, k)).exists():
+            raise DatasetError(
+                f"{path} already exists: dataset import writes only new files (it would replace "
+                "a cloud, or a scan kept there); choose a new or empty --out folder"
+            )
 
 
 def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> tuple[dict, dict]:
@@ -230,8 +229,8 @@ def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> 
     readings, clouds = {}, {}
     try:
         (out / CLOUD_DIR).mkdir(parents=True, exist_ok=True)
-        for t in spec["tests"]:
-            for s in STATES:
+        for _, t, s, k, path, _ in manifest_clouds(spec["tests"]):
+            if k == 0:  # the state's F/T stream, then its clouds
                 stream = ft_stream.read_ft_csv(t[f"ft_{s}"], spec["torque_units"])
                 window = t[f"window_{s}_s"]
                 r = ft_stream.static_reading(stream, window, spec["window_length"], settle_z)
@@ -240,12 +239,10 @@ def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> 
                 except VtestbedError as exc:
                     raise DatasetError(str(exc)) from None
                 readings[t["id"], s] = r
-                for k, path in enumerate([t[f"cloud_{s}"], *t[REPEAT_KEYS[s]]]):
-                    points = read_cloud(path, spec["cloud_units"])
-                    key = (t["id"], s, k) if k else (t["id"], s)
-                    # recorded before writing, so that a half-written one is removed too
-                    clouds[key] = dataset_cloud_path(out, t["id"], s, k)
-                    write_ply(clouds[key], points)
+            points = read_cloud(path, spec["cloud_units"])
+            key = (t["id"], s, k) if k else (t["id"], s)
+            clouds[key] = dataset_cloud_path(out, t["id"], s, k)  # recorded first: a half-written one too
+            write_ply(clouds[key], points)
     except BaseException:
         for path in clouds.values():
             path.unlink(missing_ok=True)

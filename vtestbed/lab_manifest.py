@@ -32,6 +32,7 @@ __all__ = [
     "STATES",
     "ImportOptions",
     "dataset_cloud_path",
+    "manifest_clouds",
     "read_manifest",
 ]
 
@@ -155,23 +156,14 @@ def _repeat_clouds(f: Fields, base: Path, value, field: str, state: str) -> list
     return [_path(f, base, v, f"{field}[{k}]") for k, v in enumerate(value)]
 
 
-def _clouds_once(f: Fields, tests: list[dict]) -> None:
-    """Every cloud file is one scan: a file listed twice would enter the noise floor as two scans
-    that agree exactly, a floor too small and no error."""
-    first = {}
+def manifest_clouds(tests: list[dict]):
+    """Every cloud a parsed manifest lists, as ``(index, test, state, k, path, field)``: per test
+    and state its own scan (``k`` 0, field ``cloud_<state>``), then its repeats (``k`` 1, 2, ...)."""
     for i, t in enumerate(tests):
         for s in STATES:
-            fields = [(f"cloud_{s}", t[f"cloud_{s}"])]
-            fields += [(f"{REPEAT_KEYS[s]}[{k}]", p) for k, p in enumerate(t[REPEAT_KEYS[s]])]
-            for name, path in fields:
-                key, where = path.resolve(), f"tests[{i}].{name}"
-                if key in first:
-                    raise f.error(
-                        where,
-                        f"{path} is already {first[key]}: each scan is its own file (a repeat scan "
-                        "listed as the test's own, or twice, would make the noise floor too small)",
-                    )
-                first[key] = where
+            yield i, t, s, 0, t[f"cloud_{s}"], f"cloud_{s}"
+            for k, path in enumerate(t[REPEAT_KEYS[s]], start=1):
+                yield i, t, s, k, path, f"{REPEAT_KEYS[s]}[{k - 1}]"
 
 
 def dataset_cloud_path(root: str | Path, test_id: str, state: str, repeat: int = 0) -> Path:
@@ -182,25 +174,30 @@ def dataset_cloud_path(root: str | Path, test_id: str, state: str, repeat: int =
     return Path(root) / CLOUD_DIR / f"{test_id}_{state}.ply"
 
 
-def _dataset_names_unique(f: Fields, tests: list[dict]) -> None:
-    """Two clouds must not be written to one dataset file: test ``X_loaded``'s repeat 1 and test
-    ``X``'s loaded repeat 1 are both ``clouds/X_loaded_repeat1.ply``, and the second would replace
-    the first in silence."""
-    first = {}
-    for i, t in enumerate(tests):
-        for s in STATES:
-            fields = [(f"cloud_{s}", 0)] + [
-                (f"{REPEAT_KEYS[s]}[{k - 1}]", k) for k in range(1, len(t[REPEAT_KEYS[s]]) + 1)
-            ]
-            for name, k in fields:
-                file, where = dataset_cloud_path("", t["id"], s, k).name, f"tests[{i}].{name}"
-                if file in first:
-                    raise f.error(
-                        where,
-                        f"would be written to the dataset's {CLOUD_DIR}/{file}, as {first[file]} is: choose "
-                        "test ids that do not end in another test's id followed by '_loaded' or '_repeat'",
-                    )
-                first[file] = where
+def _clouds_once(f: Fields, tests: list[dict]) -> None:
+    """Every cloud file is one scan, and one dataset file. A file listed twice would enter the
+    noise floor as two scans that agree exactly, a floor too small and no error. Two clouds must
+    not be written to one dataset file either: test ``X_loaded``'s repeat 1 and test ``X``'s
+    loaded repeat 1 are both ``clouds/X_loaded_repeat1.ply``, and the second would replace the
+    first in silence."""
+    sources, files = {}, {}
+    for i, t, s, k, path, name in manifest_clouds(tests):
+        key, where = path.resolve(), f"tests[{i}].{name}"
+        if key in sources:
+            raise f.error(
+                where,
+                f"{path} is already {sources[key]}: each scan is its own file (a repeat scan "
+                "listed as the test's own, or twice, would make the noise floor too small)",
+            )
+        sources[key] = where
+        file = dataset_cloud_path("", t["id"], s, k).name
+        if file in files:
+            raise f.error(
+                where,
+                f"would be written to the dataset's {CLOUD_DIR}/{file}, as {files[file]} is: choose "
+                "test ids that do not end in another test's id followed by '_loaded' or '_repeat'",
+            )
+        files[file] = where
 
 
 def read_manifest(path: str | Path, options: ImportOptions = DEFAULT_OPTIONS) -> dict:
@@ -238,7 +235,6 @@ def read_manifest(path: str | Path, options: ImportOptions = DEFAULT_OPTIONS) ->
     if dup:
         raise f.error("tests", f"duplicate ids {dup}")
     _clouds_once(f, parsed)
-    _dataset_names_unique(f, parsed)
     setup = _setup(f, base, data["setup"])
     load_robot(setup.robot)  # a known robot, or the valid names
     return {"setup": setup, "cloud_units": cloud_units, "torque_units": torque, "window_length": length,
