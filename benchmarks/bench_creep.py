@@ -9,8 +9,8 @@ creep check (:func:`vtestbed.researcher.loaded_scatter.loaded_scatter`) is run o
 
 Printed per rate: how often the check says the loaded block moved (alpha = 0.01; at rate 0 the
 false-alarm rate, which must not exceed alpha), and the median ratio of the most scattered
-component. Then what the creep does to the identified stiffness (FGLS-free ``gls_floor`` on the
-20 identification tests, displacements against the mean unloaded scan): each joint's mean error
+component. Then what the creep does to the identified stiffness (``gls_floor``, weighted by the
+scaled repeat-scan floor, on the 20 identification tests, displacements against the mean unloaded scan): each joint's mean error
 over the trials with the loaded scans averaged whatever the check says, and as the workflow
 measures (``against_scan_mean``'s default: the loaded repeats left out when the check fails).
 
