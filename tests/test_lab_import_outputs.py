@@ -53,3 +53,22 @@ def test_two_clouds_named_alike_in_the_dataset_are_refused(lab_files, tmp_path, 
     )
     assert "as tests[0].loaded_repeat_clouds[0] is" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_failure_while_writing_the_dataset_files_leaves_nothing_it_wrote(lab_files, tmp_path, capsys):  # noqa: F811
+    """Every cloud read and converted, then writing ft_windows.csv fails (a folder of that name is
+    in the way, as a full disk would fail it): setup.json, tests.csv, the repeats files and every
+    converted cloud are removed again, and the folder in the way is kept; a clean import of the
+    same manifest then writes a whole dataset (its file count: the manifest's clouds)."""
+    out = tmp_path / "out"
+    (out / "ft_windows.csv").mkdir(parents=True)
+    code, err = _import(lab_files / "manifest.toml", out, capsys)
+    assert code == 1 and "Traceback" not in err, err
+    assert "ft_windows.csv" in err
+    assert sorted(p.name for p in out.rglob("*")) == ["ft_windows.csv"]
+    (out / "ft_windows.csv").rmdir()
+    code, err = _import(lab_files / "manifest.toml", out, capsys)
+    assert code == 0, err
+    text = (lab_files / "manifest.toml").read_text()
+    n_clouds = text.count(".ply") + text.count(".pcd") + text.count(".xyz")
+    assert len(list((out / "clouds").iterdir())) == n_clouds

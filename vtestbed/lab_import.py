@@ -29,6 +29,7 @@ import numpy as np
 from . import ft_stream
 from .dataset import (
     CLOUD_DIR,
+    SETUP_FILE,
     TESTS_FILE,
     DatasetSetup,
     TestRecord,
@@ -39,6 +40,7 @@ from .dataset import (
 )
 from .dataset_checks import BLOCK_EDGE_RANGE_M
 from .dataset_repeats import (
+    REPEAT_FILES,
     LoadedRepeatWriter,
     RepeatRecord,
     RepeatWriter,
@@ -172,9 +174,10 @@ def import_dataset(
         file already in ``out/clouds``. A refused input leaves no dataset behind: each cloud is
         converted as it is read (one cloud in memory at a time, however many scans the lab
         took), and the converted clouds, with the folders the import made for them, are removed
-        again when a later file fails; setup.json, tests.csv and the repeats files are written
-        only after every file has been read (a failure while writing those, a full disk, can
-        leave them partly written).
+        again when a later file fails; setup.json, tests.csv, the repeats files and
+        ft_windows.csv are written only after every file has been read, and when writing them
+        fails (a full disk) they are removed too, with the clouds: an import either leaves a whole
+        dataset or nothing it wrote.
     """
     spec = read_manifest(manifest, options)
     setup: DatasetSetup = spec["setup"]
@@ -183,7 +186,20 @@ def import_dataset(
         raise DatasetError(f"{out} already holds a dataset ({TESTS_FILE}); choose an empty or new folder")
     require_own_kind(out, (), "vtestbed dataset import", DatasetError)  # a sweep's or a run's folder
     _require_new_clouds(spec, out)
-    readings, clouds = _read_files(spec, out, setup, options.settle_z)
+    made = [d for d in (out / CLOUD_DIR, *(out / CLOUD_DIR).parents) if not d.exists()]
+    written = [out / name for name in (SETUP_FILE, TESTS_FILE, *REPEAT_FILES.values(), WINDOWS_FILE)]
+    written = [path for path in written if not path.exists()]  # what the import may write, and remove
+    readings, clouds = _read_files(spec, out, setup, options.settle_z, made)
+    try:
+        return _write_dataset(spec, out, setup, readings, clouds)
+    except BaseException:
+        _remove([*written, *clouds.values()], made)
+        raise
+
+
+def _write_dataset(spec: dict, out: Path, setup: DatasetSetup, readings: dict, clouds: dict) -> ImportResult:
+    """setup.json, tests.csv, the repeats files and ft_windows.csv for the converted ``clouds``,
+    then the dataset's own checks on what was written."""
     write_setup(out, setup)
     states = [s for s in STATES if any(t[REPEAT_KEYS[s]] for t in spec["tests"])]
     with ExitStack() as files:
@@ -216,16 +232,15 @@ def _require_new_clouds(spec: dict, out: Path) -> None:
             )
 
 
-def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> tuple[dict, dict]:
+def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float, made: list) -> tuple[dict, dict]:
     """Every stream reduced and every cloud converted into ``out/clouds`` as it is read.
 
     Returns ``readings`` ``{(id, state): StaticReading}`` and the written clouds' paths
     ``{(id, state): Path}``, ``{(id, state, k): Path}`` for repeat ``k``. On any error (or an
     interruption) the clouds written so far (none of them there before:
-    :func:`_require_new_clouds`), a half-written one included, and the folders made for them are
-    removed.
+    :func:`_require_new_clouds`), a half-written one included, and the folders ``made`` for them
+    (those that did not exist before the import, innermost first) are removed.
     """
-    made = [d for d in (out / CLOUD_DIR, *(out / CLOUD_DIR).parents) if not d.exists()]
     readings, clouds = {}, {}
     try:
         (out / CLOUD_DIR).mkdir(parents=True, exist_ok=True)
@@ -244,15 +259,21 @@ def _read_files(spec: dict, out: Path, setup: DatasetSetup, settle_z: float) -> 
             clouds[key] = dataset_cloud_path(out, t["id"], s, k)  # recorded first: a half-written one too
             write_ply(clouds[key], points)
     except BaseException:
-        for path in clouds.values():
-            path.unlink(missing_ok=True)
-        for folder in made:  # only the folders this import made (innermost first), and only if empty
-            try:
-                folder.rmdir()
-            except OSError:
-                pass
+        _remove(clouds.values(), made)
         raise
     return readings, clouds
+
+
+def _remove(files, made: list) -> None:
+    """Remove the import's ``files`` and then the folders it ``made`` (innermost first; only if
+    empty, so nothing the import did not write goes with them)."""
+    for path in files:
+        path.unlink(missing_ok=True)
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
 
 
 def window_columns() -> list[str]:
