@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 import pinocchio as pin
@@ -70,6 +71,21 @@ class ModelContext:
     @property
     def n_tests(self) -> int:
         return len(self.measurements)
+
+    @cached_property
+    def payload_torque(self) -> np.ndarray:
+        """(T, n) joint torques [N*m] of the unloaded F/T reading (the weight of what the sensor
+        carries: plate and block) at the commanded pose; zero where a test has no raw readings."""
+        out = np.zeros((self.n_tests, self.kin.robot.dof))
+        flange = self.setup.sensor_in_flange
+        for t, m in enumerate(self.measurements):
+            if m.readings is None:
+                continue
+            rot = self.kin.tool_pose(m.q, flange)[:3, :3]
+            reading = np.asarray(m.readings[0], dtype=float)
+            wrench = np.concatenate([rot @ reading[:3], rot @ reading[3:]])  # base axes
+            out[t] = self.kin.jacobian(m.q, flange, frame="base").T @ wrench
+        return out
 
     def hinge_column(self, t: int, point: np.ndarray, axis: np.ndarray) -> np.ndarray:
         """(6,) displacement per unit compliance of a hinge at world ``point`` about world ``axis``."""
@@ -146,7 +162,8 @@ def _nonlinear_joint(joint: int, gravity) -> Candidate:
     def columns(ctx: ModelContext, compliance, params=None) -> np.ndarray:
         out = np.zeros((6 * ctx.n_tests, 1))
         c = compliance[j]
-        tau_g = np.array([-gravity(m.q)[j] for m in ctx.measurements])  # the sag's torque [N*m]
+        # the sag's torque [N*m]: the arm's weight and what the sensor carries (its unloaded reading)
+        tau_g = np.array([-gravity(m.q)[j] for m in ctx.measurements]) + ctx.payload_torque[:, j]
         tau_w = np.array([m.jacobian[:, j] @ m.wrench for m in ctx.measurements])
         q0, q1 = c * tau_g, c * (tau_g + tau_w)  # the linear springs' deflections
         k3 = 0.0 if params is None else float(params[0])
