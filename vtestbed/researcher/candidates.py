@@ -148,7 +148,8 @@ def _joint_coupling(i: int, j: int) -> Candidate:
 
 def _nonlinear_joint(joint: int, gravity) -> Candidate:
     """tau = k dq + k3 dq^3 at the joint: the loaded-minus-unloaded deflection is that of the cubic
-    spring from the sag under the arm's weight (``K dq = -g(q)``) to the sag plus the load.
+    spring from the sag under the arm's weight and the sensor's payload (``K dq = -g(q) + J_s^T
+    W_0``, :attr:`ModelContext.payload_torque`) to the sag plus the load.
 
     First order in k3 (``params`` None) the column is ``-c [(q0 + dq)^3 - q0^3]`` times the joint's
     Jacobian column (q0, dq the linear sag and load deflection); at an estimate k3 it is the secant
