@@ -34,6 +34,7 @@ from ..researcher.diagnose import Whitener, fit_model
 from ..researcher.identify import stack
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement
+from ..researcher.model_fit import term_slices
 from ..robots import RobotDescription
 from .kappa import inv_kappa_batch
 from .optimal import CandidateTest, candidate_tests, nominal_wrench
@@ -79,11 +80,9 @@ class Hypothesis:
         """(6 T, n + p) the model's columns on ``ctx``'s tests, bilinear terms at its compliances."""
         ms = ctx.measurements
         a = stack([m.jacobian for m in ms], [m.wrench for m in ms])
-        cols, k = [a], a.shape[1]
-        for t in self.terms:  # a secant term at its own fitted parameters (Candidate.design)
-            cols.append(t.design(ctx, self.compliance, self.x[k : k + len(t.params)]))
-            k += cols[-1].shape[1]
-        return np.hstack(cols)
+        # a secant term at its own fitted parameters (Candidate.design)
+        cols = [t.design(ctx, self.compliance, self.x[at]) for t, at in term_slices(self.terms, a.shape[1])]
+        return np.hstack([a, *cols])
 
     def predict(self, ctx: ModelContext) -> np.ndarray:
         """(6 T,) predicted displacements [m, rad] (linear model plus the terms)."""

@@ -26,7 +26,7 @@ from ..errors import UnknownNameError
 from .cubic_spring import NONLINEAR_SECANT_LIMIT, cubic_deflection
 from .kinematics import ArmKinematics
 from .measure import TestMeasurement, wrench_at_block
-from .statics import CLEAN_WORLD_TERMS, ExactStatics
+from .statics import CLEAN_WORLD_TERMS, ExactStatics, sensor_load_torque
 
 
 @dataclass(frozen=True)
@@ -77,14 +77,9 @@ class ModelContext:
         """(T, n) joint torques [N*m] of the unloaded F/T reading (the weight of what the sensor
         carries: plate and block) at the commanded pose; zero where a test has no raw readings."""
         out = np.zeros((self.n_tests, self.kin.robot.dof))
-        flange = self.setup.sensor_in_flange
         for t, m in enumerate(self.measurements):
-            if m.readings is None:
-                continue
-            rot = self.kin.tool_pose(m.q, flange)[:3, :3]
-            reading = np.asarray(m.readings[0], dtype=float)
-            wrench = np.concatenate([rot @ reading[:3], rot @ reading[3:]])  # base axes
-            out[t] = self.kin.jacobian(m.q, flange, frame="base").T @ wrench
+            if m.readings is not None:
+                out[t] = sensor_load_torque(self.kin, self.setup, m.q, np.asarray(m.readings[0], dtype=float))
         return out
 
     def hinge_column(self, t: int, point: np.ndarray, axis: np.ndarray) -> np.ndarray:

@@ -103,6 +103,16 @@ class Whitener:
         return np.einsum("ij,tj...->ti...", self.inv_chol, blocks).reshape(shape)
 
 
+def term_slices(terms, n: int) -> list[tuple[Candidate, slice]]:
+    """Each term and where its parameters sit in a fit's ``x``: after the ``n`` compliances, in
+    the terms' order."""
+    out, k = [], n
+    for term in terms:
+        out.append((term, slice(k, k + len(term.params))))
+        k += len(term.params)
+    return out
+
+
 def fit_model(
     ctx: ModelContext, white: Whitener, terms: list[Candidate], iterations: int | None = None
 ) -> ModelFit:
@@ -130,21 +140,16 @@ def fit_model(
         x_mat = np.hstack([a, *cols]) if cols else a
         x, cov, rank, basis = _lstsq(white(x_mat), white(d - gap))
         c = x[:n]
-        k = n
-        for t, block in zip(terms, cols):  # each term's estimate, for a secant term's next columns
-            params[t.label] = x[k : k + block.shape[1]]
-            k += block.shape[1]
+        params = {t.label: x[at] for t, at in term_slices(terms, n)}  # for a secant term's next columns
     x_mat = np.hstack([a, *cols]) if cols else a
     residuals = d - gap - x_mat @ x
     white_residuals = white(residuals)
     chi2 = float(np.sum(white_residuals**2))
-    theta, theta_std, k = {}, {}, n
+    theta, theta_std = {}, {}
     std = np.sqrt(np.diag(cov))
-    for term, block in zip(terms, cols):
-        p = block.shape[1]
-        theta[term.label] = dict(zip(term.params, x[k : k + p].tolist()))
-        theta_std[term.label] = dict(zip(term.params, std[k : k + p].tolist()))
-        k += p
+    for term, at in term_slices(terms, n):
+        theta[term.label] = dict(zip(term.params, x[at].tolist()))
+        theta_std[term.label] = dict(zip(term.params, std[at].tolist()))
     dof = len(d) - rank
     labels = tuple(t.label for t in terms)
     press = _leave_one_test_out(basis, white_residuals)

@@ -39,6 +39,16 @@ TOLERANCE = 1e-13  # rad: far below any deflection the scanner sees (1e-6 rad)
 CLEAN_WORLD_TERMS = ("gravity_stiffness", "load_dependent_jacobian", "exact_kinematics")
 
 
+def sensor_load_torque(
+    kin: ArmKinematics, setup: DatasetSetup, q: np.ndarray, reading: np.ndarray
+) -> np.ndarray:
+    """(n,) joint torques [N*m] of an F/T ``reading`` (6,) [N, N*m] (sensor frame: the load on the
+    sensor) with the arm at ``q``: ``J_s(q)^T W_s``, the wrench in base axes at the sensor."""
+    rot = kin.tool_pose(q, setup.sensor_in_flange)[:3, :3]
+    wrench = np.concatenate([rot @ reading[:3], rot @ reading[3:]])
+    return kin.jacobian(q, setup.sensor_in_flange, frame="base").T @ wrench
+
+
 class ExactStatics:
     """The nominal robot's static equilibrium under its weight and the measured sensor load.
 
@@ -62,12 +72,10 @@ class ExactStatics:
         q = q_cmd
         for _ in range(MAX_ITERATIONS):
             at_load = q if "load_dependent_jacobian" in self.terms else q_cmd
-            rot = kin.tool_pose(at_load, self.setup.sensor_in_flange)[:3, :3]
-            wrench = np.concatenate([rot @ reading[:3], rot @ reading[3:]])
-            jac = kin.jacobian(at_load, self.setup.sensor_in_flange, frame="base")
+            load = sensor_load_torque(kin, self.setup, at_load, reading)
             at_weight = q if "gravity_stiffness" in self.terms else q_cmd
             gravity = pin.rnea(kin.model, kin.data, at_weight, self._zeros, self._zeros)
-            q_next = q_cmd + compliance * (jac.T @ wrench - gravity)
+            q_next = q_cmd + compliance * (load - gravity)
             if np.max(np.abs(q_next - q)) < TOLERANCE:
                 return q_next
             q = q_next
