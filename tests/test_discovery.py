@@ -96,6 +96,13 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
     assert result["rivals"] == {"reason": "marginal", "base_terms": [], "round": 0,
                                 "rivals": ["baseline", "joint_coupling(2,3)", *stand_ins][: disc.MAX_RIVALS]}  # fmt: skip
     assert result["named_after"] == ["joint_coupling(2,3)"]
+    # the diagnosis after the round spends half of alpha (an adaptive design): Bonferroni over its
+    # candidates at alpha / 2, the first diagnosis's at alpha
+    reports = [json.loads((out / r / "diagnose" / "report.json").read_text()) for r in ("round0", "round1")]
+    assert [r["alpha"] for r in reports] == [DEFAULT_ALPHA, result["alpha_after_round"]]
+    assert result["alpha_after_round"] == pytest.approx(DEFAULT_ALPHA / 2, rel=1e-15)
+    for rep, alpha in zip(reports, (DEFAULT_ALPHA, DEFAULT_ALPHA / 2)):
+        assert rep["rounds"][0]["level"] == pytest.approx(alpha / len(rep["rounds"][0]["tests"]), rel=1e-12)
     assert [(c["chosen"], c["runner_up"]) for c in result["confusable_after"]] == [
         ("joint_coupling(2,3)", "link_compliance(link 2)")
     ]
@@ -116,7 +123,11 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
         for key in ("loaded_Fx_N", "loaded_Tz_Nm", "unloaded_Fz_N", "q2_deg"):
             assert float(ext[tid][key]) == pytest.approx(float(ref[tid][key]), rel=1e-12, abs=1e-12)
     md = (out / "discover.md").read_text()
-    assert "**Before**: named nothing." in md and "**After**: named `joint_coupling(2,3)`." in md
+    assert "**Before**: named nothing." in md
+    assert (
+        "**After**: named `joint_coupling(2,3)` (alpha 0.005: the rounds' tests were chosen from the data)."
+        in md
+    )
     assert f"**Undecided** (marginal): {', '.join(f'`{r}`' for r in result['rivals']['rivals'])}." in md
     # a fixed-size round says nothing of a target; a sized one says whether it reached it
     assert prop["separation_target"] is None and prop["target_met"] is None and "(target" not in md

@@ -56,7 +56,9 @@ def markdown(result: dict) -> str:
                      f"{_tests(len(p['tests']))} more, predicted separation {p['separation_before']:.1f} -> "
                      f"{p['separation_after']:.1f}{_target(p)}; measured: `{ma['best']}` leads by BIC {ma['delta_bic']:.1f}.")  # fmt: skip
     n = len(result["rounds"])
-    lines += ["", f"**After**{f' {n} rounds' if n > 1 else ''}: named {names(result['named_after'])}."]
+    after = result.get("alpha_after_round")  # discover.json before 2026-11-28: every diagnosis at alpha
+    level = f" (alpha {after:g}: the rounds' tests were chosen from the data)" if after is not None else ""
+    lines += ["", f"**After**{f' {n} rounds' if n > 1 else ''}: named {names(result['named_after'])}{level}."]
     vb, va = result.get("validation_gap_before"), result.get("validation_gap_after")
     if vb and va:
         lines.append(f"Validation prediction error over the noise floor: {vb['baseline']:.2f} with the paper's "
