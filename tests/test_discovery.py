@@ -125,7 +125,7 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
     md = (out / "discover.md").read_text()
     assert "**Before**: named nothing." in md
     assert (
-        "**After**: named `joint_coupling(2,3)` (alpha 0.005: the rounds' tests were chosen from the data)."
+        "**After**: named `joint_coupling(2,3)` (alpha 0.005, the level after a round: docs/discrepancy.md)."
         in md
     )
     assert f"**Undecided** (marginal): {', '.join(f'`{r}`' for r in result['rivals']['rivals'])}." in md

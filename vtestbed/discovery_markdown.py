@@ -57,7 +57,7 @@ def markdown(result: dict) -> str:
                      f"{p['separation_after']:.1f}{_target(p)}; measured: `{ma['best']}` leads by BIC {ma['delta_bic']:.1f}.")  # fmt: skip
     n = len(result["rounds"])
     after = result.get("alpha_after_round")  # discover.json before 2026-11-28: every diagnosis at alpha
-    level = f" (alpha {after:g}: the rounds' tests were chosen from the data)" if after is not None else ""
+    level = f" (alpha {after:g}, the level after a round: docs/discrepancy.md)" if after is not None else ""
     lines += ["", f"**After**{f' {n} rounds' if n > 1 else ''}: named {names(result['named_after'])}{level}."]
     vb, va = result.get("validation_gap_before"), result.get("validation_gap_after")
     if vb and va:
