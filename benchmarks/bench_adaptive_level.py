@@ -68,9 +68,8 @@ from vtestbed.researcher.noise_floor import NoiseFloor  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
 
 TRUE_TERM = "joint_coupling(5,6)"
-NONCENTRALITY = (
-    80.0  # the true term's own test on the 20 tests (default): named first in practically every draw
-)
+# the true term's own test on the 20 tests (default): named first in practically every draw
+NONCENTRALITY = 80.0
 ALPHA = 0.01
 LEVELS = (1.0, 0.5)  # shares of alpha for the diagnosis after the round
 EXTRA_TESTS = 10
@@ -138,9 +137,8 @@ def run_draws(scenario_path: str, seed: int, draws: range, nu: int, noncentralit
         rivals = rivals_from_report(report, ALPHA) or confirming_rivals(report)
         prop = disc.propose(ctx1, white, pool, rivals, tests, sc.lab, EXTRA_TESTS)
         idx = list(prop.choice.indices)
-        noise_new = chol @ rng.standard_normal(
-            (6, len(tests))
-        )  # one draw per pool test: both designs read it
+        # one noise draw per pool test (a design's tests are distinct): both designs read it
+        noise_new = chol @ rng.standard_normal((6, len(tests)))
         row = {"draw": d, "first": [c.label for c in chosen], "reason": rivals["reason"]}
         for design, key in ((idx, "adaptive"), (previous, "control")):
             if design is None:
