@@ -62,7 +62,8 @@ from vtestbed.design import discriminate as disc  # noqa: E402
 from vtestbed.design.rivals import confirming_rivals, rivals_from_report  # noqa: E402
 from vtestbed.researcher.candidates import ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import identifiable, name_effects  # noqa: E402
-from vtestbed.researcher.discrepancy import dropped_notes  # noqa: E402
+from vtestbed.researcher.discrepancy import dropped_notes, round_records  # noqa: E402
+from vtestbed.researcher.identify import stack  # noqa: E402
 from vtestbed.researcher.model_fit import Whitener, fit_model  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
@@ -76,7 +77,8 @@ EXTRA_TESTS = 10
 
 
 def _state(scenario_path: str, pool_seed: int):
-    """The fixed part of every draw: tests, truth, candidate pool, the lab's candidate tests."""
+    """The fixed part of every draw: the paper's tests, their whitener with the floor known, the
+    compliances, the candidate pool, the true term and the lab's candidate tests."""
     sc = load_scenario(scenario_path)
     setup, kin, ms = world_measurements(sc)
     ctx = ModelContext(ms, setup, kin)  # the paper's linear statics: the truth is exactly representable
@@ -86,7 +88,7 @@ def _state(scenario_path: str, pool_seed: int):
     term = next(c for c in pool if c.label == TRUE_TERM)
     tests = disc.test_pool(sc.robot, sc.lab, np.random.default_rng(pool_seed), 150)
     ctx_pool = disc.proposed_context(kin, setup, sc.lab, tests)
-    return sc, setup, kin, ms, compliance, pool, term, tests, ctx_pool
+    return sc, ctx, white, compliance, pool, term, tests, ctx_pool
 
 
 def _truth(ctx: ModelContext, compliance, term, theta) -> np.ndarray:
@@ -95,11 +97,11 @@ def _truth(ctx: ModelContext, compliance, term, theta) -> np.ndarray:
     return base + (term.columns(ctx, compliance) @ theta).reshape(-1, 6)
 
 
-def _theta(ctx, compliance, term, noncentrality: float) -> np.ndarray:
-    """The term's parameters scaled to ``noncentrality`` against the stiffness columns (known floor)."""
-    white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=10**9, n_tests=ctx.n_tests))
+def _theta(ctx, white, compliance, term, noncentrality: float) -> np.ndarray:
+    """The term's parameters scaled to ``noncentrality`` against the stiffness columns (``white``:
+    the floor known)."""
     x = white(term.columns(ctx, compliance))
-    a = white(np.vstack([m.jacobian * (m.jacobian.T @ m.wrench) for m in ctx.measurements]))
+    a = white(stack([m.jacobian for m in ctx.measurements], [m.wrench for m in ctx.measurements]))
     q, _ = np.linalg.qr(a)
     resid = x - q @ (q.T @ x)
     direction = np.linalg.svd(resid, full_matrices=False)[2][0]  # the term's most visible direction
@@ -114,14 +116,13 @@ def _report(steps, chosen, alpha) -> dict:
     """The parts of ``diagnose``'s report the rivals rules read."""
     kept = {c.label for c in chosen}
     return {"alpha": alpha, "rank_by": "press", "named": sorted(kept), "dropped": dropped_notes(steps, kept),
-            "rounds": [{"base": list(s.base_terms), "level": s.level, "chosen": s.chosen, "delta": s.delta,
-                        "tests": s.tests, "overlap_of": s.overlap_of} for s in steps]}  # fmt: skip
+            "rounds": round_records(steps)}  # fmt: skip
 
 
 def run_draws(scenario_path: str, seed: int, draws: range, nu: int, noncentrality: float) -> list[dict]:
-    sc, setup, kin, ms, compliance, pool, term, tests, ctx_pool = _state(scenario_path, seed)
-    ctx0 = ModelContext(ms, setup, kin)
-    theta = _theta(ctx0, compliance, term, noncentrality)
+    sc, ctx0, known, compliance, pool, term, tests, ctx_pool = _state(scenario_path, seed)
+    setup, kin = ctx0.setup, ctx0.kin
+    theta = _theta(ctx0, known, compliance, term, noncentrality)
     truth_old = _truth(ctx0, compliance, term, theta)
     truth_pool = _truth(ctx_pool, compliance, term, theta)
     chol = np.diag(SIGMA)
@@ -131,7 +132,7 @@ def run_draws(scenario_path: str, seed: int, draws: range, nu: int, noncentralit
         samples = chol @ rng.standard_normal((6, nu))  # the repeat scans' zero-mean differences
         cov_hat = samples @ samples.T / nu
         white = Whitener(NoiseFloor(cov_hat, n_samples=nu, n_tests=nu // 3))
-        ctx1 = ModelContext(_with_noise(ms, truth_old, rng, chol), setup, kin)
+        ctx1 = ModelContext(_with_noise(ctx0.measurements, truth_old, rng, chol), setup, kin)
         chosen, steps, _ = name_effects(ctx1, white, pool, ALPHA)
         report = _report(steps, chosen, ALPHA)  # the rivals as discover --always reads them
         rivals = rivals_from_report(report, ALPHA) or confirming_rivals(report)

@@ -116,10 +116,7 @@ def diagnose(
             {"chosen": s.chosen, "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic}
             for s in steps if s.chosen in names_chosen and s.delta is not None and s.delta < CONFUSABLE_MARGIN
         ],
-        "rounds": [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "level": s.level, "chosen": s.chosen,
-                    "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic, "tests": s.tests,
-                    "dropped": list(s.dropped), "overlap_of": s.overlap_of}
-                   for s in steps],
+        "rounds": round_records(steps),
         "baseline": base.to_dict(),
         "model": final.to_dict(),
         "validation": {"before": validation_gap(ctx_val, white, base, []),
@@ -134,6 +131,15 @@ def diagnose(
         write_report(report, Path(out), kin.robot.joint_names)
         write_json_atomic(Path(out) / "model.json", model_file(report, setup.robot, statics))
     return report
+
+
+def round_records(steps) -> list[dict]:
+    """The report's ``rounds``: one record per :class:`~.diagnose.Step` of the stepwise search (what
+    :mod:`vtestbed.design.rivals` reads to find the rivals a diagnosis leaves undecided)."""
+    return [{"base": list(s.base_terms), "base_chi2": s.base_chi2, "level": s.level, "chosen": s.chosen,
+             "runner_up": s.runner_up, "delta": s.delta, "delta_bic": s.delta_bic, "tests": s.tests,
+             "dropped": list(s.dropped), "overlap_of": s.overlap_of}
+            for s in steps]  # fmt: skip
 
 
 def dropped_notes(steps, kept=()) -> dict:
