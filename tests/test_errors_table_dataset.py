@@ -186,6 +186,23 @@ def _report_of_nothing(ctx):
     return cli(ctx, ["report", ctx.tmp / "empty"])
 
 
+DIAGNOSIS = {"dataset": "ds", "alpha": 0.01, "noise_floor": {}, "detect": {}, "named": [], "rounds": [],
+             "baseline": {}, "model": {}, "validation": {}, "identification_fit": {}}  # fmt: skip
+
+
+def _report_of(name: str, data: dict):
+    """``vtestbed report`` on a folder holding only ``name`` with ``data`` (a sweep folder: a trials
+    folder too, empty: the manifest is checked first)."""
+
+    def case(ctx):
+        folder = ctx.tmp / "result"
+        (folder / "trials").mkdir(parents=True)
+        (folder / name).write_text(json.dumps(data))
+        return cli(ctx, ["report", folder])
+
+    return case
+
+
 def _identify_not_a_dataset(ctx):
     (ctx.tmp / "empty").mkdir()
     return cli(ctx, ["identify", ctx.tmp / "empty"])
@@ -251,6 +268,12 @@ CASES = {
     "sweep-manifest-not-json": _manifest('{"fingerprint": 1'),
     "sweep-manifest-plans": _manifest(json.dumps({"fingerprint": "x", "plans": [1]})),
     "report-empty-folder": _report_of_nothing,
+    "report-diagnosis-field-type": _report_of("report.json", DIAGNOSIS | {"named": 5}),
+    "report-diagnosis-field-deep": _report_of("report.json", DIAGNOSIS),
+    "report-campaign-field-type": _report_of(
+        "campaign.json", {"scenario": "s", "joint_names": [], "campaign": 5}
+    ),
+    "setup-nested-deep": setup_text(b"[" * 100_000 + b"]" * 100_000),
 }
 
 

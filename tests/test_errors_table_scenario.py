@@ -223,6 +223,7 @@ CASES = {
     ),
     "scen-not-utf8": simulate(text=b'name = "kr\xe960"\n'),
     "scen-not-toml": load(text=b"name = kr60\n"),
+    "scen-nested-deep": load(text=b"x = " + b"[" * 5000 + b"]" * 5000 + b"\n"),
     "scen-missing": _missing_file,
     "camp-missing": _sweep_without_campaign,
     "camp-trials-missing": campaign(setter("campaign.trials", KeyError)),

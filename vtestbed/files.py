@@ -4,7 +4,7 @@ and atomic writes that never leave a half-written file behind.
 Every reader raises the error class its caller names (a :class:`~vtestbed.errors.ScenarioError`
 for scenario and campaign files, a :class:`~vtestbed.errors.DatasetError` for dataset files),
 with the file's path in the message: a missing file, text that is not UTF-8, text that does not
-parse, or a top level that is not a table.
+parse (or nests too deeply to parse), or a top level that is not a table.
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ def read_toml(path: str | Path, what: str, error: type[VtestbedError]) -> dict:
         return tomllib.loads(_text(path, what, error))
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:  # the parser recurses per level: no file of ours nests that deep
+        raise error(f"{path}: not a {what}: its arrays or tables nest too deeply to parse") from None
 
 
 def read_json(path: str | Path, what: str, error: type[VtestbedError], kind: type = dict):
@@ -54,6 +56,8 @@ def read_json(path: str | Path, what: str, error: type[VtestbedError], kind: typ
         value = json.loads(_text(path, what, error))
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON: {exc}") from None
+    except RecursionError:  # the decoder recurses per level: no file of ours nests that deep
+        raise error(f"{path}: not a {what}: its arrays or objects nest too deeply to parse") from None
     if not isinstance(value, kind):
         raise error(f"{path}: the {what} must hold a JSON {kind.__name__}, got {type(value).__name__}")
     return value

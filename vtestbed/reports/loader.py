@@ -12,6 +12,7 @@ Anything else is refused with a :class:`ReportError` that lists the files looked
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,6 +158,42 @@ def check_run(data: dict, path: Path) -> dict:
     return data
 
 
+# What the diagnosis sections read from report.json, and the JSON type of each (sections_diagnosis.py)
+DIAGNOSIS_FIELDS = {"dataset": str, "alpha": float, "noise_floor": dict, "detect": dict, "named": list,
+                    "rounds": list, "baseline": dict, "model": dict, "validation": dict,
+                    "identification_fit": dict}  # fmt: skip
+CAMPAIGN_FIELDS = {"scenario": str, "joint_names": list, "campaign": dict}
+_JSON_NAMES = {str: "a string", float: "a number", dict: "a table", list: "a list"}
+
+
+def _json_value(value) -> str:
+    """``value`` as JSON would show it, with its JSON type (for an error message)."""
+    kind = next((name for t, name in _JSON_NAMES.items() if isinstance(value, t)), "a value")
+    if value is None or isinstance(value, bool):
+        kind = "null" if value is None else "a boolean"
+    elif isinstance(value, int):
+        kind = "a number"
+    text = json.dumps(value)
+    return f"{kind} {text[:40]}{'...' if len(text) > 40 else ''}" if value is not None else kind
+
+
+def _typed(data: dict, path: Path, fields: dict) -> dict:
+    """``data`` if it holds every key of ``fields`` with a value of its JSON type (the first wrong
+    one is named); a number may be an int, and lists of names must hold strings."""
+    _require(data, path, tuple(fields))
+    for key, kind in fields.items():
+        value = data[key]
+        ok = _is_number(value) if kind is float else isinstance(value, kind)
+        if not ok:
+            raise _bad(path, key, f"must be {_JSON_NAMES[kind]}, got {_json_value(value)}")
+    for key in ("named", "joint_names"):
+        if key in fields and not all(isinstance(v, str) for v in data[key]):
+            raise _bad(path, key, "must be a list of strings")
+    if "rounds" in fields and not all(isinstance(r, dict) for r in data["rounds"]):
+        raise _bad(path, "rounds", "must be a list of tables, one per round of the search")
+    return data
+
+
 def detect_kind(root: str | Path) -> str:
     """The kind of result in ``root``: ``run``, ``campaign`` or ``diagnosis``.
 
@@ -192,8 +229,7 @@ def load_result(root: str | Path) -> ResultFolder:
         from ..campaigns.store import results
 
         path = root / CAMPAIGN_FILE
-        data = _require(read_json(path, "campaign manifest", ReportError), path,
-                        ("scenario", "joint_names", "campaign"))  # fmt: skip
+        data = _typed(read_json(path, "campaign manifest", ReportError), path, CAMPAIGN_FIELDS)
         trials = results(root)
         if trials.empty:
             raise ReportError(
@@ -202,9 +238,7 @@ def load_result(root: str | Path) -> ResultFolder:
             )
         return ResultFolder(kind, root, data, None, trials)
     path = root / DIAGNOSIS_FILE
-    data = _require(read_json(path, "diagnosis report", ReportError), path,
-                    ("dataset", "alpha", "noise_floor", "detect", "named", "rounds", "baseline", "model",
-                     "validation", "identification_fit"))  # fmt: skip
+    data = _typed(read_json(path, "diagnosis report", ReportError), path, DIAGNOSIS_FIELDS)
     # a relative path was written from another working directory: `diagnose DATA --out DATA/diagnose`
     # is the usual layout, so the folder above is the next guess
     found = [d for d in (Path(data["dataset"]), root.parent) if (d / "tests.csv").is_file()]

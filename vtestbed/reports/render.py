@@ -16,7 +16,7 @@ from markupsafe import Markup
 from ..files import write_atomic
 from . import sections_campaign, sections_diagnosis, sections_run
 from .blocks import Num, Section
-from .loader import ResultFolder, load_result
+from .loader import CAMPAIGN_FILE, DIAGNOSIS_FILE, ReportError, ResultFolder, load_result
 
 REPORT_FILE = "report.html"
 
@@ -92,7 +92,19 @@ def write_report(root: str | Path, out: str | Path | None = None) -> Path:
     """
     folder = load_result(root)
     out = Path(root) / REPORT_FILE if out is None else Path(out)
-    html = render(folder)
+    try:
+        html = render(folder)
+    except (KeyError, TypeError, AttributeError, IndexError, ValueError) as exc:
+        if folder.kind == "run":  # check_run read every field the run sections use: a defect of ours
+            raise
+        # a campaign's or diagnosis's files are checked to their top-level fields only; what lies
+        # deeper was written by `vtestbed sweep` / `diagnose`, so a wrong shape there is an edited file
+        source = folder.root / (CAMPAIGN_FILE if folder.kind == "campaign" else DIAGNOSIS_FILE)
+        raise ReportError(
+            f"{source}: a field the {folder.kind} report reads is missing or of the wrong type "
+            f"({type(exc).__name__}: {exc}); write the file again with 'vtestbed "
+            f"{'sweep' if folder.kind == 'campaign' else 'diagnose --out'}'"
+        ) from None
     out.parent.mkdir(parents=True, exist_ok=True)  # `report --out` checked that it may be created
     write_atomic(out, lambda tmp: tmp.write_text(html, encoding="utf-8"))  # plotly.js is not ASCII
     return out
