@@ -206,7 +206,11 @@ def _with_repeats(datasets, tmp_path, text: str) -> Path:
         ("T002,1,clouds/../clouds/T002_unloaded.ply\n",
          r"repeats.csv line 2 \(test 'T002'\): cloud 'clouds/../clouds/T002_unloaded.ply' is the test's own "
          r"unloaded scan \(cloud_unloaded in "),
-        ("T001,1,clouds/T002_unloaded.ply\n", None),  # another test's scan: a path check cannot tell
+        ("T001,1,clouds/T002_unloaded.ply\n",
+         r"repeats.csv line 2 \(test 'T001'\): cloud 'clouds/T002_unloaded.ply' is the unloaded scan of test "
+         r"'T002' \(cloud_unloaded in .*tests.csv\); a repeat must be another scan of its own test's unloaded "
+         r"block"),
+        ("T001,1,clouds/extra.ply\n", None),  # its own scan: accepted
     ],
 )  # fmt: skip
 def test_bad_repeats_csv_names_file_line_and_field(datasets, tmp_path, rows, message):

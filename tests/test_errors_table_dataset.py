@@ -86,6 +86,31 @@ def _missing_tests(ctx):
     return refused(lambda: read_tests(root), DatasetError)
 
 
+def _column_twice(lines):
+    """tests.csv with its loaded_Fz_N column (header and values) appended once more."""
+    k = lines[0].split(",").index("loaded_Fz_N")
+    return ("\n".join(f"{line},{line.split(',')[k]}" for line in lines) + "\n").encode()
+
+
+def _tests_edit(edit):
+    """A case: read_tests on the small dataset with its tests.csv rows changed by ``edit(rows)``."""
+
+    def case(ctx):
+        root = _dataset(ctx)
+        _edit_tests(root, edit)
+        return refused(lambda: read_tests(root, check_files=False), DatasetError)
+
+    return case
+
+
+def _copied_row(rows):
+    rows.append(dict(rows[0], test_id="T009"))  # the first test again, under a new id
+
+
+def _other_pose_unloaded(rows):
+    rows[1]["cloud_unloaded"] = rows[0]["cloud_unloaded"]  # T001's scan for T002, at another pose
+
+
 def _repeats(text):
     def case(ctx):
         root = _dataset(ctx)
@@ -102,6 +127,15 @@ def _loaded_repeats(text):
         return refused(lambda: read_repeats(root, check_files=False, state="loaded"), DatasetError)
 
     return case
+
+
+def _both_repeat_files(ctx):
+    """One scan listed as an unloaded repeat and as a loaded one."""
+    root = _dataset(ctx)
+    (root / "clouds" / "T0_r1.ply").write_bytes(b"")
+    (root / "loaded_repeats.csv").write_text("test_id,repeat,cloud\nT000,1,clouds/T0_r1.ply\n")
+    (root / "repeats.csv").write_text("test_id,repeat,cloud\nT000,1,clouds/T0_r1.ply\n")
+    return refused(lambda: read_repeats(root, check_files=False), DatasetError)
 
 
 def _truth(text):
@@ -268,6 +302,11 @@ CASES = {
     "sweep-manifest-not-json": _manifest('{"fingerprint": 1'),
     "sweep-manifest-plans": _manifest(json.dumps({"fingerprint": "x", "plans": [1]})),
     "report-empty-folder": _report_of_nothing,
+    "tests-column-twice": csv_lines(_column_twice),
+    "tests-loaded-scan-twice": _tests_edit(_copied_row),
+    "tests-unloaded-scan-other-pose": _tests_edit(_other_pose_unloaded),
+    "repeats-other-test-scan": _repeats("test_id,repeat,cloud\nT000,1,clouds/T1_u.ply\n"),
+    "repeats-loaded-repeat-too": _both_repeat_files,
     "report-diagnosis-field-type": _report_of("report.json", DIAGNOSIS | {"named": 5}),
     "report-diagnosis-field-deep": _report_of("report.json", DIAGNOSIS),
     "report-campaign-field-type": _report_of(

@@ -10,6 +10,7 @@ import csv
 import math
 import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,6 +41,8 @@ def _broken(kind: str):
         tests[3] = _with(m, displacement=12.0 * m.displacement)
     elif kind == "off-block":  # torques recorded in N*mm as N*m
         tests[3] = _with(m, wrench=np.concatenate([m.wrench[:3], 1e3 * m.wrench[3:]]))
+    elif kind == "all-opposite":  # every test's scans swapped (or every wrench's sign flipped)
+        tests = [_with(t, displacement=-t.displacement) for t in tests]
     elif kind == "singular":
         q = m.q.copy()
         q[4] = 0.0  # theta5 = 0: joints 4 and 6 aligned
@@ -94,6 +97,14 @@ def _same_scan(row):
     row["cloud_loaded"] = row["cloud_unloaded"]
 
 
+def _same_scan_copied(ctx: Ctx) -> Path:
+    """The simulated dataset with its fourth test's unloaded PLY copied as its loaded scan (a file of
+    its own: the reader's check that no scan is listed twice cannot see it, the fit can)."""
+    root = _edited(ctx, lambda row: row.update(cloud_loaded="clouds/T004_copy.ply"))
+    shutil.copy(root / "clouds" / "T004_unloaded.ply", root / "clouds" / "T004_copy.ply")
+    return root
+
+
 def _slack(row):
     for key in [k for k in row if k.startswith("loaded_")]:
         row[key] = row[key.replace("loaded_", "unloaded_")]
@@ -113,13 +124,14 @@ def _edited(ctx: Ctx, edit):
     return root
 
 
-def identify_warning(edit):
-    """A case: ``vtestbed identify`` on an edited dataset, exit 0 and one warning naming the test."""
+def identify_warning(edit=None, make=None):
+    """A case: ``vtestbed identify`` on an edited dataset, exit 0 and one warning naming the test
+    (``edit``: the fourth row's edit; ``make``: a function of ``ctx`` that returns the dataset)."""
 
     def case(ctx: Ctx) -> str:
         from vtestbed.cli.main import main
 
-        root = _edited(ctx, edit)
+        root = make(ctx) if make is not None else _edited(ctx, edit)
         ctx.capsys.readouterr()
         assert main(["identify", str(root), "--quiet", "--no-truth"]) == 0
         printed = ctx.capsys.readouterr()
@@ -145,12 +157,14 @@ def scan(*argv):
 
 
 CASES = {
-    "same-scan-twice": identify_warning(_same_scan),
+    "same-scan-twice": identify_warning(make=_same_scan_copied),
+    "same-scan-listed-twice": identify_error(_same_scan),
     "scans-swapped": identify_warning(_swap),
     "moved-too-far": warning("far"),
     "off-block-wrench": warning("off-block"),
     "strict": identify_error(_swap, "--strict"),
     "strict-library": error("opposite", ImplausibleDataError, strict=True),
+    "strict-all-opposite": error("all-opposite", ImplausibleDataError, strict=True),
     "slack-wire": identify_error(_slack),
     "singular-in-dataset": error("singular", SingularPoseError),
     "scan-faces-hidden": scan("--view", "1,1,-0.2"),
@@ -158,7 +172,7 @@ CASES = {
     "scan-too-far": scan("--distance-mm", "2000"),
     "strict-json": _strict_json,
 }
-SIMULATED = ("same-scan-twice", "scans-swapped", "strict", "slack-wire")
+SIMULATED = ("same-scan-twice", "same-scan-listed-twice", "scans-swapped", "strict", "slack-wire")
 
 
 @pytest.mark.parametrize("key", sorted(set(ROWS) | set(CASES)))

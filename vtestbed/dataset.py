@@ -247,6 +247,30 @@ class TestWriter(_RowWriter):
         return record.test_id
 
 
+def _own_scans(scans: dict, clouds: tuple, test: tuple, where: str, row: dict) -> None:
+    """Every loaded scan is one test's alone, and no scan is loaded in one place and unloaded in
+    another: a test listed twice under two ids (or a loaded scan copied) would count its displacement
+    twice, and a loaded scan given as unloaded measures no load. An unloaded scan may serve several
+    tests at one pose (a lab that loads one pose at several tensions or hooks), not at two poses.
+    ``scans``: :func:`~.dataset_checks.file_key` -> (state, test id, line, joint angles)."""
+    tid, line, q = test
+    for state, cloud in zip(("unloaded", "loaded"), clouds):
+        key = checks.file_key(cloud)
+        if key not in scans:
+            scans[key] = (state, tid, line, q)
+            continue
+        first_state, first_tid, first_line, first_q = scans[key]
+        if state == first_state == "unloaded" and np.allclose(q, first_q, rtol=0.0, atol=1e-9):
+            continue
+        why = ("that test's pose is another, and an unloaded scan serves only tests at its own pose"
+               if state == first_state == "unloaded"
+               else "each test needs its own scans of the block, unloaded and loaded")  # fmt: skip
+        raise DatasetError(
+            f"{where}: cloud_{state} {row[f'cloud_{state}']!r} is already cloud_{first_state} of test "
+            f"{first_tid!r} (line {first_line}): {why} (e.g. {CLOUD_DIR}/{tid}_{state}.ply)"
+        )
+
+
 def read_tests(
     root: str | Path, check_files: bool = True, sensor_range=None, sensor_name: str = "force sensor"
 ) -> list[TestRecord]:
@@ -254,7 +278,7 @@ def read_tests(
     root = Path(root)
     path = root / TESTS_FILE
     rows = checks.read_csv(path, COLUMNS, "tests file")
-    records = []
+    records, scans = [], {}
     for line, row in rows:
         where = f"{path} line {line} (test {row.get('test_id')!r})"
         if not row["test_id"].strip():
@@ -285,6 +309,7 @@ def read_tests(
                         f"{where}: point cloud {c} is missing ({len(rows)} tests need {2 * len(rows)} clouds, "
                         f"{n_ply} found in {root / CLOUD_DIR})"
                     )
+        _own_scans(scans, clouds, (tid, line, q), where, row)
         scanner_pose = homogeneous(matrix_from_rotation_vector(sc[3:]), sc[:3])
         records.append(TestRecord(row["test_id"], row["group"], q, wu, wl, scanner_pose, *clouds))
     ids = [r.test_id for r in records]

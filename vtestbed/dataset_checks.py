@@ -132,6 +132,12 @@ def read_csv(path: Path, columns: list[str], what: str) -> list[tuple[int, dict]
                     f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(columns)}; "
                     f"comma-separated; the file's header has {has})"
                 )
+            twice = sorted({c for c in header if header.count(c) > 1})
+            if twice:  # the last of two columns would win without a word
+                raise DatasetError(
+                    f"{path}: column {twice[0]!r} appears {header.count(twice[0])} times in the header; "
+                    "each column once (columns: " + ", ".join(columns) + ")"
+                )
             rows = []
             for fields in reader:
                 line = reader.line_num
@@ -198,7 +204,7 @@ def cloud_path(root: Path, text: str, where: str, field: str, example: str) -> P
 
 
 def _same_file(a: Path, b: Path) -> bool:
-    return _file_key(a) == _file_key(b)
+    return file_key(a) == file_key(b)
 
 
 def not_own_scan(
@@ -216,13 +222,28 @@ def not_own_scan(
             )
 
 
+def not_a_test_scan(
+    cloud: Path, scans: dict, tests_file: Path, where: str, text: str, example: str, block: str = "unloaded"
+) -> None:
+    """A repeat scan (``cloud``) must not be any test's own scan (``scans``: :func:`file_key` ->
+    (test id, state)): another test's scan of the block at another pose, or under load, would enter
+    the noise floor as if it were this test's repeat."""
+    hit = scans.get(file_key(cloud))
+    if hit is not None:
+        tid, state = hit
+        raise DatasetError(
+            f"{where}: cloud {text!r} is the {state} scan of test {tid!r} (cloud_{state} in {tests_file}); a "
+            f"repeat must be another scan of its own test's {block} block, in its own file (e.g. {example})"
+        )
+
+
 def not_listed_twice(
     seen: dict, cloud: Path, row: tuple, where: str, text: str, example: str, block: str = "unloaded"
 ) -> None:
     """A repeat scan (``cloud``; ``row``: its test id, repeat and line) must not be another
     repeat's file too (``seen``: the files so far -> their row): two repeats of one scan enter the
     noise floor as an exact zero, which shrinks it without looking wrong as a number."""
-    key = _file_key(cloud)
+    key = file_key(cloud)
     if key in seen:
         tid, repeat, line = seen[key]
         raise DatasetError(
@@ -232,7 +253,9 @@ def not_listed_twice(
     seen[key] = row
 
 
-def _file_key(path: Path):
+def file_key(path: Path):
+    """What identifies a file on disk (device and inode: a hard link is the same file; a missing
+    file: its resolved path)."""
     try:
         stat = path.stat()  # a hard link to the same scan is the same file
         return stat.st_dev, stat.st_ino

@@ -91,7 +91,12 @@ def _read_repeat_rows(root: Path, tests, check_files: bool, state: str = "unload
     (None: neither)."""
     path = root / _state_file(state)
     rows = checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file")
-    records, first_line, seen = [], {}, {}
+    records, first_line = [], {}
+    seen = {} if tests is None else _other_repeats(root, state)  # one scan is never both states' repeat
+    scans = {} if tests is None else {
+        checks.file_key(path): (t.test_id, k)
+        for t in tests.values() for k, path in (("unloaded", t.cloud_unloaded), ("loaded", t.cloud_loaded))
+    }  # fmt: skip
     for line, row in rows:
         tid = row.get("test_id") or ""
         where = f"{path} line {line} (test {tid!r})"
@@ -116,9 +121,27 @@ def _read_repeat_rows(root: Path, tests, check_files: bool, state: str = "unload
         if tests is not None:
             own = {"unloaded": tests[tid].cloud_unloaded, "loaded": tests[tid].cloud_loaded}
             checks.not_own_scan(cloud, own, root / TESTS_FILE, where, row["cloud"], example, state)
+            checks.not_a_test_scan(cloud, scans, root / TESTS_FILE, where, row["cloud"], example, state)
         checks.not_listed_twice(seen, cloud, (tid, repeat, line), where, row["cloud"], example, state)
         records.append(RepeatRecord(tid, repeat, cloud))
     return records
+
+
+def _other_repeats(root: Path, state: str) -> dict:
+    """The clouds of the other block state's repeats file, as :func:`.dataset_checks.not_listed_twice`
+    keeps them (file key -> (test id, repeat, "line N of FILE")); {} without that file. Rows that
+    do not parse are left to that file's own read, which names them."""
+    other = "loaded" if state == "unloaded" else "unloaded"
+    path = root / _state_file(other)
+    if not path.is_file():
+        return {}
+    seen = {}
+    for line, row in checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file"):
+        text = (row.get("cloud") or "").strip()
+        cloud = root / text
+        if text and cloud.resolve().is_relative_to(root.resolve()):
+            seen[checks.file_key(cloud)] = (row.get("test_id"), row.get("repeat"), f"{line} of {path}")
+    return seen
 
 
 def read_repeats(root: str | Path, check_files: bool = True, state: str = "unloaded") -> list[RepeatRecord]:
@@ -138,7 +161,8 @@ def read_repeats(root: str | Path, check_files: bool = True, state: str = "unloa
     DatasetError
         Naming the file, the line and the field: a test_id not in tests.csv, a repeat that is not
         an integer >= 1, a (test_id, repeat) listed twice, a cloud outside the folder or missing,
-        a cloud that is the test's own unloaded or loaded scan or another repeat's.
+        a cloud that is any test's own unloaded or loaded scan, or another repeat's (of either
+        block state: repeats.csv and loaded_repeats.csv never share a scan).
     """
     root = Path(root)
     if not (root / _state_file(state)).is_file():

@@ -269,6 +269,12 @@ def identify_measurements(
             f"{MOTIONLESS_FRACTION:.0%} of the fitted model's, translation and rotation): the same scan given "
             "twice, or the load never reached the block? Check their clouds and readings"
         )
+    if np.all(result.compliance < 0):  # the per-test checks need a positive fit to predict from
+        notes.append(
+            f"every joint's fitted compliance is negative: in all {len(tests)} tests the block moved against "
+            "the load, which no spring does. Loaded and unloaded scans swapped, or the wrench's sign "
+            "flipped, throughout? Check the columns cloud_unloaded, cloud_loaded and the F/T readings"
+        )
     notes += plausibility_notes(tests)
     if not notes:
         return result
