@@ -7,6 +7,7 @@ the researcher's code; the scanner placed where it cannot see the block, through
 from __future__ import annotations
 
 import csv
+import json
 import math
 import shutil
 import warnings
@@ -148,6 +149,15 @@ def identify_error(edit, *options):
     return lambda ctx: cli(ctx, ["identify", _edited(ctx, edit), "--quiet", "--no-truth", *options])
 
 
+def _half_edge(ctx: Ctx):
+    """``vtestbed identify`` on the simulated dataset with half its block's edge in setup.json."""
+    root = ctx.tmp / "ds"
+    shutil.copytree(ctx.shared, root)
+    setup = json.loads((root / "setup.json").read_text())
+    (root / "setup.json").write_text(json.dumps(setup | {"block_edge_m": setup["block_edge_m"] / 2}))
+    return cli(ctx, ["identify", root, "--quiet", "--no-truth"])
+
+
 def _strict_json(ctx: Ctx) -> str:
     return dumps({"chi2": math.nan, "std": [math.inf, 2.0]}, indent=None)
 
@@ -166,13 +176,21 @@ CASES = {
     "strict-library": error("opposite", ImplausibleDataError, strict=True),
     "strict-all-opposite": error("all-opposite", ImplausibleDataError, strict=True),
     "slack-wire": identify_error(_slack),
+    "edge-too-small": _half_edge,
     "singular-in-dataset": error("singular", SingularPoseError),
     "scan-faces-hidden": scan("--view", "1,1,-0.2"),
     "scan-too-close": scan("--distance-mm", "100"),
     "scan-too-far": scan("--distance-mm", "2000"),
     "strict-json": _strict_json,
 }
-SIMULATED = ("same-scan-twice", "same-scan-listed-twice", "scans-swapped", "strict", "slack-wire")
+SIMULATED = (
+    "same-scan-twice",
+    "same-scan-listed-twice",
+    "scans-swapped",
+    "strict",
+    "slack-wire",
+    "edge-too-small",
+)
 
 
 @pytest.mark.parametrize("key", sorted(set(ROWS) | set(CASES)))
