@@ -160,6 +160,7 @@ CASES = {
     "design-poses-missing": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/none.json"),
     "design-poses-not-json": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/afile"),
     "design-poses-ragged": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/ragged.json"),
+    "design-region-option-random-pool": command("poses", "design", *PAPER_PRIOR, "--box", "1,2,3"),
     "scheduler-not-a-url": _scheduler,
     "closed-pipe": _closed_pipe,
     "disk-full": _disk_full,

@@ -93,6 +93,12 @@ def setter(path: str, value):
     return edit
 
 
+def _gls_floor_two_repeats(data):
+    """gls_floor swept over the base scenario's 2 tests with 2 repeats each: 4 floor samples."""
+    data["scanner"] = {"repeats": 2}
+    data["campaign"]["axes"]["method"] = ["gls_floor"]
+
+
 def _missing_file(ctx):
     return cli(ctx, ["simulate", ctx.tmp / "none.toml", "--out", ctx.tmp / "out"])
 
@@ -231,6 +237,7 @@ CASES = {
     "camp-unknown-axis": campaign(setter("campaign.axes.n_test", [1])),
     "camp-duplicate-value": campaign(setter("campaign.axes.n_tests", [2, 2])),
     "camp-too-many-tests": campaign(setter("campaign.axes.n_tests", [3])),
+    "camp-gls-floor-few-samples": campaign(_gls_floor_two_repeats),
     "robot-path": lambda ctx: cli(ctx, ["robot", "--robot", "/etc"]),
     "urdf-not-xml": given("bad.urdf", "not xml", "robot", "import", "{file}", "--name", "zz_bad"),
     "urdf-missing": given("bad.urdf", "", "robot", "import", "{tmp}/none.urdf", "--name", "zz_bad"),

@@ -60,6 +60,15 @@ def _cmd_design(args) -> int:
             "minimax without --no-bound, or --refine 0)"
         )
     pool_kind = "regions" if kappa_sel else args.pool
+    if args.poses or pool_kind != "regions":  # a random pool or a poses file: the regions' options unused
+        given = [name for name, default in args.region_defaults.items() if getattr(args, name) != default]
+        if given:
+            option = "--" + given[0].replace("_", "-")
+            raise OutOfRangeError(
+                f"{option} shapes the kappa-regions pool; it does not apply to "
+                f"{'--poses' if args.poses else '--pool ' + pool_kind} (valid: --pool regions or --criterion "
+                f"kappa, or leave {option} out)"
+            )
     n_poses = args.n if args.n is not None else (max(40, 3 * args.tests) if pool_kind == "regions" else 400)
     args.n = n_poses
     if args.poses:
@@ -169,6 +178,9 @@ def _noise_args(p) -> None:
                    help="rotation std [rad] (default %(default)s)")  # fmt: skip
 
 
+REGION_OPTIONS = ("step_deg", "threshold", "min_height", "box", "select", "wrist_jitter_deg")
+
+
 def add_design_parsers(cmds, common, lab_args) -> None:
     """Register ``poses design`` and ``poses next`` (``common``, ``lab_args``: the group's shared options)."""
     p = cmds.add_parser(
@@ -177,6 +189,8 @@ def add_design_parsers(cmds, common, lab_args) -> None:
     common(p)
     lab_args(p)
     p.set_defaults(n=None)  # poses to draw: 400 random, or max(40, 3 x --tests) from the regions
+    # the options that shape the kappa-regions pool, with their defaults (refused with another pool)
+    p.set_defaults(region_defaults={name: p.get_default(name) for name in REGION_OPTIONS})
     p.add_argument("--poses", help="poses.json (from 'poses regions'); default: draw --n poses (see --pool)")
     p.add_argument("--pool", choices=POOLS, default="random",
                    help="random: --n poses uniform in the joint limits, block in the lab zone (default); "
