@@ -44,6 +44,15 @@ def pose_from_args(robot, args) -> np.ndarray:
     return robot.check_pose(parse_angles_deg(args.q_deg, "--q-deg", robot.dof), field="--q-deg")
 
 
+def runnable_pose(robot, lab, args) -> np.ndarray:
+    """:func:`pose_from_args`, away from singularities at the lab's block (as ``simulate`` checks a
+    test): ``load`` and ``scan`` print a test's numbers, and at a singular pose they mean nothing."""
+    q = pose_from_args(robot, args)
+    field = "--controller-deg" if getattr(args, "controller_deg", None) else "--q-deg"
+    robot.check_not_singular(q, lab.block_in_flange[:3, 3], field=field)
+    return q
+
+
 NEGATIVE_HINT = "negative first value: --q-deg=-10,20,... or --q-deg -10,20,..."
 
 

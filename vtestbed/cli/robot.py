@@ -11,7 +11,7 @@ import numpy as np
 from ..files import dumps
 from ..robots import DEFAULT_ROBOT, available_robots, load_robot
 from ..transforms import displacement
-from .args import add_load_arguments, add_pose_arguments, load_tension, pose_from_args
+from .args import add_load_arguments, add_pose_arguments, load_tension, runnable_pose
 
 
 def _cmd_robot(args) -> int:
@@ -101,16 +101,21 @@ def _cmd_import(args) -> int:
 
 def _cmd_load(args) -> int:
     from ..robot_lab import lab_for_robot
+    from ..world.clearance import describe_test, ground_clearance
     from ..world.rig import Rig
 
     robot = load_robot(args.robot)
     lab = lab_for_robot(robot)  # the robot's own lab: table, rings and tension limit fit it
     tension = load_tension(args, lab)
+    q = runnable_pose(robot, lab, args)
     rig = Rig(robot, lab)
-    rig.command(pose_from_args(robot, args))
+    rig.command(q)
     rig.hook(args.hook, args.anchor)
     unloaded = rig.solve()
     loaded = rig.tighten(tension)
+    # an arm in the table or the floor: numbers of a pose no lab can hold (the wire's and the
+    # scanner's clearance, which `simulate` checks too, belong to a test, not to this probe of a load)
+    ground_clearance(rig).enforce(describe_test(q, args.hook, args.anchor), "raise")
     disp = displacement(unloaded.block_pose, loaded.block_pose)
     result = {
         "q_cmd_deg": np.degrees(loaded.q_cmd).tolist(),

@@ -19,7 +19,7 @@ from .args import (
     number,
     output_dir,
     parse_numbers,
-    pose_from_args,
+    runnable_pose,
 )
 
 DEFAULT_VIEW = "1,1,1"
@@ -43,7 +43,7 @@ def _cmd_scan(args) -> int:
     if not np.linalg.norm(view) > 0:  # checked before --out is created: a refusal writes nothing
         raise OutOfRangeError(f"--view must be a non-zero direction in the block frame, got {args.view!r}")
     rig = Rig(robot, lab)
-    q_cmd = pose_from_args(robot, args)
+    q_cmd = runnable_pose(robot, lab, args)
     rig.command(q_cmd)
     rig.hook(args.hook, args.anchor)
     out = Path(args.out)

@@ -96,6 +96,26 @@ def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, g1: int, g2: int) 
     return float(mujoco.mj_geomDistance(model, data, g1, g2, _DISTMAX, None))
 
 
+TOOL_GEOMS = ("ft_mount", "ft_sensor", "stem")
+
+
+def _links(rig: Rig, ids: dict) -> list[str]:
+    return [f"link{i + 1}" for i in range(rig.robot.dof) if f"link{i + 1}" in ids]
+
+
+def ground_clearance(rig: Rig) -> ClearanceReport:
+    """The arm's links, the sensor, its stem and the block against the table top and the floor, at
+    the kinematics MuJoCo's data holds (a state just solved or tightened): the part of
+    :func:`truth_clearance` that needs no wire and no scanner (``vtestbed load``)."""
+    m, d = rig.model, rig.data
+    ids = scene_geoms(m)
+    return ClearanceReport(tuple(
+        Clearance(part, ground, geom_distance(m, d, ids[part], ids[ground]), LINK_MARGIN_M)
+        for part in [*_links(rig, ids), *TOOL_GEOMS, "block"] for ground in ("table_top", "floor")
+        if (part, ground) not in FIXED_TO_FLOOR
+    ))  # fmt: skip
+
+
 def truth_clearance(rig: Rig, state: RigState, scanner_position) -> ClearanceReport:
     """Every clearance pair of the test in ``rig`` at ``state`` (the loaded equilibrium, wire placed).
 
@@ -105,11 +125,8 @@ def truth_clearance(rig: Rig, state: RigState, scanner_position) -> ClearanceRep
     """
     m, d = rig.model, rig.data
     ids = scene_geoms(m)
-    links = [f"link{i + 1}" for i in range(rig.robot.dof) if f"link{i + 1}" in ids]
-    tool = ["ft_mount", "ft_sensor", "stem"]
-    out = [Clearance(part, ground, geom_distance(m, d, ids[part], ids[ground]), LINK_MARGIN_M)
-           for part in links + tool + ["block"] for ground in ("table_top", "floor")
-           if (part, ground) not in FIXED_TO_FLOOR]  # fmt: skip
+    links, tool = _links(rig, ids), list(TOOL_GEOMS)
+    out = list(ground_clearance(rig).entries)
     out += [Clearance("wire", part, geom_distance(m, d, ids["wire"], ids[part]), WIRE_MARGIN_M)
             for part in ["base"] + links + tool]  # fmt: skip
     block = geom_shape(m, d, ids["block"], "block")
