@@ -320,6 +320,14 @@ def test_the_named_model_is_a_file_identify_can_use(hidden_dataset, hidden_diagn
                        r"stiffnesses and link_compliance\(link 2\)"):  # fmt: skip
         identify_with_model(hidden_dataset, bad)
     assert cli.main(["identify", str(hidden_dataset), "--model", str(bad), "--quiet", "--no-truth"]) == 2
+    # the sensor's yaw, the block's rz and joint 6's DH offset all turn the block about one axis:
+    # determined in rank, not in number (the scaled columns' condition number jumps past 1e6)
+    data["terms"] = ["block_offset", "ft_misalignment", "geometric_error"]
+    bad.write_text(json.dumps(data))
+    with pytest.raises(DatasetError, match=r"terms: 'geometric_error' is nearly collinear with the stiffnesses "
+                       r"and block_offset, ft_misalignment on these tests \(condition number of the scaled columns "
+                       r"[\d.e+]+, valid: below 1e\+06\)"):  # fmt: skip
+        identify_with_model(hidden_dataset, bad)
 
 
 def test_geometric_error_candidate_recovers_the_worlds_dh_deviations(paper, truth):

@@ -11,7 +11,7 @@ Units: SI; stiffness in N*m/rad.
 
 from __future__ import annotations
 
-from ..errors import DatasetError, OutOfRangeError, UnknownNameError
+from ..errors import ConvergenceError, DatasetError, OutOfRangeError, UnknownNameError
 from ..robots import load_robot
 from .candidates import (
     CANDIDATE_NAMES,
@@ -22,6 +22,7 @@ from .candidates import (
 )
 from .diagnose import Whitener, fit_model, identifiable, require_tests, validation_gap
 from .kinematics import ArmKinematics
+from .model_fit import scaled_svd
 from .scan_mean import load_with_floor
 from .statics import ExactStatics
 
@@ -115,9 +116,23 @@ def identify_with_model(root, model_path) -> dict:
                   f"the model's {len(terms)} terms", "Record more tests or name fewer terms in the model file")  # fmt: skip
     base = fit_model(ctx, white, [])
     terms = identifiable(ctx, white, terms, base.compliance)
-    fit = _fit_determined(ctx, white, terms, base, model_path)
-    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names),
-            "validation": validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)}  # fmt: skip
+    try:
+        fit = _fit_determined(ctx, white, terms, base, model_path)
+        gap = validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)
+    except ConvergenceError as exc:  # compliances far off (too many terms for the tests): no statics
+        raise DatasetError(
+            f"{model_path}: terms: the paper's model plus {', '.join(t.label for t in terms)} fitted to the "
+            f"{len(ident)} identification tests of {root} predicts nothing physical ({exc}); name fewer "
+            "terms in the model file or record more tests"
+        ) from None
+    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names), "validation": gap}
+
+
+# The scaled columns' condition number above which a model's parameters are not determined: every
+# single candidate on the paper's tests is below 50, ten terms together below 250; a term that
+# nearly repeats another (a geometric error's dtheta6 beside the sensor's yaw and the block's rz)
+# jumps to 1e11.
+COLLINEAR_CONDITION = 1e6
 
 
 def _fit_determined(ctx, white, terms, base, model_path):
@@ -137,6 +152,16 @@ def _fit_determined(ctx, white, terms, base, model_path):
                 f"{model_path}: terms: {term.label!r} shares {shared} of its {len(term.params)} directions "
                 f"with the stiffnesses and {earlier} on these tests, so its parameters are not determined; "
                 "leave it out (or the term it duplicates)"
+            )
+        s = scaled_svd(grown.design)[1]
+        if s[0] > COLLINEAR_CONDITION * s[-1]:
+            earlier = ", ".join(t.label for t in terms[:k]) or "no term"
+            raise DatasetError(
+                f"{model_path}: terms: {term.label!r} is nearly collinear with the stiffnesses and {earlier} "
+                f"on these tests (condition number of the scaled columns {s[0] / s[-1]:.2g}, valid: below "
+                f"{COLLINEAR_CONDITION:g}), so its parameters are not determined (they would come out "
+                "arbitrarily large, with stds to match); leave it out (or the term it duplicates), or add "
+                "tests that separate them"
             )
         fit = grown
     return fit
