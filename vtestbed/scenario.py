@@ -23,7 +23,7 @@ from .dataset_repeats import REPEATS_RANGE
 from .errors import OutOfRangeError, ScenarioError, VtestbedError
 from .files import read_toml
 from .lab import DEFAULT_SCANNER_DISTANCE_M, LabSetup, parse_lab
-from .robots import DEFAULT_ROBOT, RobotDescription, load_robot
+from .robots import DEFAULT_ROBOT, RobotDescription, available_robots, load_robot
 from .schema import Fields
 from .world.effects import parse_effects
 from .world.scan_noise import NOISE_PARAM_RANGES, ScanNoise
@@ -288,8 +288,11 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
             raise f.error(key, "is required")
     name = f.string(data["name"], "name", allow_empty=False)
     robot_name = data.get("robot", DEFAULT_ROBOT)
+    if not isinstance(robot_name, str) or not robot_name:
+        raise f.error("robot", f"must be the name of a robot vtestbed describes ({', '.join(available_robots())}), "
+                               f"got {robot_name!r}")  # fmt: skip
     try:
-        robot = load_robot(f.string(robot_name, "robot", allow_empty=False))
+        robot = load_robot(robot_name)
     except VtestbedError as exc:
         raise f.error("robot", str(exc)) from None
     lab = parse_lab(data.get("lab", {}), f, robot)
@@ -306,6 +309,7 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     force = _force_sensor_plan(data.get("force_sensor", {}), f)
     world = f.table(data.get("world", {}), "world", ("effects",))
     effects = parse_effects(world.get("effects", []), f)
+    _check_effects_in_world(effects, robot, f)
     ident = f.table(data.get("identification", {}), "identification", ("method", "reference"))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
     reference = f.choice(ident.get("reference", DEFAULT_REFERENCE), "identification.reference", REFERENCES)
@@ -346,6 +350,23 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         source=Path(source) if source else None,
         raw=data,
     )
+
+
+def _check_effects_in_world(effects, robot: RobotDescription, f: Fields) -> None:
+    """Each hidden effect against the robot and its true stiffness (a coupling that would make the
+    stiffness matrix indefinite, a joint the robot lacks): when the file is read, naming it, not
+    when the world is built."""
+    if not effects:
+        return
+    from .world.truth import load_truth  # the world's own file: read only when the world is edited
+
+    truth = load_truth(robot.name)
+    for i, effect in enumerate(effects):
+        try:
+            effect.check_world(robot, truth, f"world.effects[{i}] ({effect.name})")
+        except VtestbedError as exc:
+            where = f"{f.source}: " if f.source else ""
+            raise ScenarioError(f"{where}{exc}") from None
 
 
 def _check_floor_samples(repeats: int, n_tests: int, f: Fields) -> None:

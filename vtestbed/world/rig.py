@@ -37,6 +37,12 @@ TENSION_TOL = 1e-6  # N; holding the tension reaches ~1e-10 N
 HOLD_OFFSET = 1e15  # m
 
 
+# A stiff arm deflects by milliradians (the KR60 about 1 mrad under gravity and 200 N): hidden effects
+# that deflect a joint by 50 mrad (2.9 deg) make a world that no longer describes one. (A rig without
+# effects is not checked: the solver's own tests scale the stiffness down 100 times.)
+MAX_DEFLECTION_RAD = 0.05
+
+
 class Rig:
     """One virtual lab: a robot, its tool, the table with rings, and the wire.
 
@@ -254,17 +260,40 @@ class Rig:
         else:
             tol = check_range("tol", tol, 0.0, np.inf, "N*m")
             tolerance = lambda q, k: np.full(q.size, tol)  # noqa: E731
-        return statics.newton(
-            self._residual,
-            self.tangent_stiffness,
-            tolerance,
-            q0,
-            max_iterations,
-            tangent0,
-            tangent0_exact,
-            inverse0,
-            self._tangent_estimate,
-        )
+        args = (self._residual, self.tangent_stiffness, tolerance, q0, max_iterations, tangent0, tangent0_exact,
+                inverse0, self._tangent_estimate)  # fmt: skip
+        try:
+            eq = statics.newton(*args)
+        except ConvergenceError as exc:
+            if softening := self._softened_joints(q0, any_softening=True):
+                raise ConvergenceError(f"{exc}; {softening}") from None
+            raise
+        if softening := self._softened_joints(eq.qpos):
+            raise OutOfRangeError(softening)
+        deflection = eq.qpos[self._joint_qpos] - self._q_cmd
+        j = int(np.argmax(np.abs(deflection)))
+        if self.effects and abs(deflection[j]) > MAX_DEFLECTION_RAD:  # a clean rig may be soft on purpose
+            effects = ", ".join(e.name for e in self.effects)
+            raise OutOfRangeError(
+                f"{self.robot.joint_names[j]} deflects {deflection[j] * 1e3:.4g} mrad "
+                f"({np.degrees(deflection[j]):.3g} deg) at equilibrium, beyond {MAX_DEFLECTION_RAD * 1e3:g} mrad: "
+                f"the joint springs (models/{self.robot.name}/truth.toml) and the hidden effects (world.effects: "
+                f"{effects}) make a robot that sags, not the stiff arm the experiment measures; shrink the effect"
+            )
+        return eq
+
+    def _softened_joints(self, qpos, any_softening: bool = False) -> str:
+        """What a softening spring (``nonlinear_joint`` with k3 < 0) did at MuJoCo's ``qpos``: ""
+        while every such joint's tangent stiffness stays positive (with ``any_softening``, for the
+        equilibrium's own failure, any softening spring is named)."""
+        deflection = qpos[self._joint_qpos] - self._q_cmd
+        for i, effect in enumerate(self.effects):
+            if getattr(effect, "k3_Nm_per_rad3", 0.0) < 0:
+                k = float(self.truth.stiffness_true[effect.joint - 1])
+                dq = float(deflection[effect.joint - 1])
+                if any_softening or not effect.tangent_stiffness(k, dq) > 0:
+                    return effect.past_peak(k, None if any_softening else dq, f"world.effects[{i}]")
+        return ""
 
     def solve(self, max_iterations: int = 50, tol: float | None = None) -> RigState:
         """Static equilibrium under gravity, springs and wire at the current settings.

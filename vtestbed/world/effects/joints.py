@@ -91,6 +91,20 @@ class NonlinearJoint(WorldEffect):
         """d tau / d dq [N*m/rad] of the joint at deflection ``dq`` [rad] with linear stiffness ``k``."""
         return k + 3.0 * self.k3_Nm_per_rad3 * dq**2
 
+    def past_peak(self, k: float, dq: float | None, field: str) -> str:
+        """Why a softening spring (k3 < 0) leaves no stable equilibrium: its torque ``k dq + k3 dq^3``
+        peaks at ``dq* = sqrt(k / (3 |k3|))``, so a joint loaded beyond ``2/3 k dq*`` has none
+        (``dq`` [rad]: the deflection an equilibrium search ended at, if any; ``field``: the
+        effect's place in the scenario). A world past the peak describes nothing physical."""
+        peak = np.sqrt(k / (3 * -self.k3_Nm_per_rad3))
+        here = "" if dq is None else f" (the equilibrium found lies at {dq * 1e3:.3g} mrad)"
+        return (
+            f"{field} ({self.name}).k3_Nm_per_rad3 = {self.k3_Nm_per_rad3:g} N*m/rad^3 caps joint {self.joint}'s "
+            f"spring torque at {2 / 3 * k * peak:.4g} N*m, reached at a deflection of {peak * 1e3:.3g} mrad{here}: "
+            "a joint loaded beyond it (gravity and wire) has no stable equilibrium; valid: a softening k3 whose "
+            f"cap the joint's load stays well below, k3 > -4 k^3 / (27 tau^2) for a load tau (k = {k:.4g} N*m/rad)"
+        )
+
     def check_world(self, robot, truth, field: str) -> None:
         if not 1 <= self.joint <= robot.dof:
             raise OutOfRangeError(f"{field}.joint: joint {self.joint} does not exist (valid 1..{robot.dof})")
