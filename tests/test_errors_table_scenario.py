@@ -229,6 +229,13 @@ CASES = {
     ),
     "scen-not-utf8": simulate(text=b'name = "kr\xe960"\n'),
     "scen-not-toml": load(text=b"name = kr60\n"),
+    "scen-sensor-range-tiny": load(setter("lab.force_sensor", {"range_N_Nm": [0.001] * 6})),
+    "scen-robot-number": load(setter("robot", 3)),
+    "scen-coupling-indefinite": load(
+        setter(
+            "world", {"effects": [{"name": "joint_coupling", "joints": [5, 6], "stiffness_Nm_per_rad": -1e8}]}
+        )
+    ),
     "scen-nested-deep": load(text=b"x = " + b"[" * 5000 + b"]" * 5000 + b"\n"),
     "scen-missing": _missing_file,
     "camp-missing": _sweep_without_campaign,

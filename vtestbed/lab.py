@@ -377,6 +377,14 @@ def parse_lab(table, fields, robot=None) -> LabSetup:
         if changes:
             attr = _LAB_PARTS[part]
             lab = dataclasses.replace(lab, **{attr: dataclasses.replace(getattr(lab, attr), **changes)})
+    top, source = lab.max_tension
+    if top < MIN_TENSION_N:  # every tension would be refused, and the refusal would name the test
+        part = "force_sensor.range_N_Nm" if source.endswith("force range") else "wire"
+        raise fields.error(
+            f"lab.{part}",
+            f"leaves no wire tension to test with: {source} caps it at {top:g} N, below the "
+            f"{MIN_TENSION_N:g} N a taut wire needs",
+        )
     if "max_tension_N" in table:  # only stricter: the robot, wire and sensor limits still hold
         cap = fields.number(table["max_tension_N"], "lab.max_tension_N", MIN_TENSION_N, lab.max_tension[0])
         lab = dataclasses.replace(lab, tension_cap_N=cap)
