@@ -262,36 +262,33 @@ def test_cli_discover_refuses_bad_input(tmp_path, capsys):
     (tmp_path / "r0").mkdir()
     no_repeats = _small_scenario(tmp_path / "r0", repeats=0)
     cases = [
-        ([str(path), "--out", str(tmp_path / "a"), "--extra-tests", "0"], "extra_tests = 0"),
-        ([str(path), "--out", str(tmp_path / "b"), "--alpha", "1.5"], "alpha = 1.5"),
+        ([str(path), "--out", str(tmp_path / "a"), "--extra-tests", "0"],
+         "argument --extra-tests: must be an integer [1, 50], got '0'"),
+        ([str(path), "--out", str(tmp_path / "b"), "--alpha", "1.5"], "--alpha = 1.5 must be in (0, 1)"),
         ([str(tmp_path / "none.toml"), "--out", str(tmp_path / "c")], "none.toml"),
         ([str(no_repeats), "--out", str(tmp_path / "d")], "scanner.repeats"),
-        (
-            [str(path), "--out", str(tmp_path / "e"), "--rounds", "0"],
-            "rounds = 0 is outside the valid range [1, 5]",
-        ),
-        (
-            [str(path), "--out", str(tmp_path / "f"), "--separation", "-3"],
-            "separation = -3.0 must be a positive",
-        ),
-        (
-            [str(path), "--out", str(tmp_path / "g"), "--separation", "nan"],
-            "separation = nan must be a positive",
-        ),
-        (
-            [str(path), "--out", str(tmp_path / "h"), "--separation", "--max-extra-tests", "5"],
-            "max_extra_tests = 5 is outside the valid range [10, 50]",
-        ),
-        (
-            [str(path), "--out", str(tmp_path / "i"), "--max-extra-tests", "20"],
-            "max_extra_tests = 20 sizes a round only with a separation target",
-        ),
-    ]
+        ([str(path), "--out", str(tmp_path / "e"), "--rounds", "0"], "argument --rounds: must be an integer [1, 5], got '0'"),
+        ([str(path), "--out", str(tmp_path / "f"), "--separation", "-3"],
+         "argument --separation: must be a finite number in (0, 1e+09], got '-3'"),
+        ([str(path), "--out", str(tmp_path / "g"), "--separation", "nan"],
+         "argument --separation: must be a finite number in (0, 1e+09], got 'nan'"),
+        ([str(path), "--out", str(tmp_path / "h"), "--separation", "--max-extra-tests", "5"],
+         "--max-extra-tests = 5 must be at least --extra-tests = 10"),
+        ([str(path), "--out", str(tmp_path / "i"), "--max-extra-tests", "20"],
+         "max_extra_tests = 20 sizes a round only with a separation target"),
+    ]  # fmt: skip
     for argv, message in cases:
-        code = cli_main.main(["discover", *argv])
+        try:  # an option out of its range is argparse's: it exits 2 itself
+            code = cli_main.main(["discover", *argv])
+        except SystemExit as exc:
+            code = exc.code
         err = capsys.readouterr().err
         assert code == 2 and message in err and "Traceback" not in err, err
         assert not (tmp_path / "a" / "round0").exists()
+    # the options' ranges are the library's (literals: building the parser must not load MuJoCo)
+    from vtestbed.discovery import EXTRA_TESTS_RANGE, ROUNDS_RANGE
+
+    assert EXTRA_TESTS_RANGE == (1, 50) and ROUNDS_RANGE == (1, 5)
 
 
 def test_an_unknown_ranking_is_refused_before_anything_is_simulated(tmp_path):

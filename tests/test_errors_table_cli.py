@@ -164,6 +164,14 @@ CASES = {
     "design-poses-not-json": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/afile"),
     "design-poses-ragged": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/ragged.json"),
     "design-region-option-random-pool": command("poses", "design", *PAPER_PRIOR, "--box", "1,2,3"),
+    "design-prior-negative": command("poses", "design", "--stiffness-prior=-1,2,3,4,5,6"),
+    "diagnose-rank-unknown": command("diagnose", "{tmp}/ds", "--rank", "aic"),
+    "diagnose-candidates-none-and-names": command(
+        "diagnose", "{tmp}/ds", "--candidates", "none,link_compliance"
+    ),
+    "discover-extra-tests-zero": command(
+        "discover", "{tmp}/s.toml", "--out", "{tmp}/o", "--extra-tests", "0"
+    ),
     "scheduler-not-a-url": _scheduler,
     "closed-pipe": _closed_pipe,
     "disk-full": _disk_full,

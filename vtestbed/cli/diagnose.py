@@ -14,6 +14,11 @@ def _cmd_diagnose(args) -> int:
     from ..robots import load_robot
 
     names = () if (args.candidates or "").strip() == "none" else args.candidates  # none: the detection alone
+    if names and "none" in [n.strip() for n in names.split(",")]:
+        raise OutOfRangeError(
+            f"--candidates {names!r}: 'none' (the detection test alone) stands alone; give it by itself, or "
+            "candidate names without it"
+        )
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
@@ -55,7 +60,7 @@ def register(sub) -> None:
     )
     p.add_argument("--statics", default="exact", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
-    p.add_argument("--rank", help="how to rank the significant candidates: press (their leave-one-test-out "
+    p.add_argument("--rank", choices=("press", "bic"), help="how to rank the significant candidates: press (their leave-one-test-out "
                    "prediction error, the default) or bic")  # fmt: skip
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_diagnose)

@@ -5,13 +5,20 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..files import dumps
-from .args import output_dir
+from .args import integer, number, output_dir
 
 
 def _cmd_discover(args) -> int:
     from ..discovery import discover, markdown
+    from ..errors import OutOfRangeError
     from ..scenario import load_scenario
 
+    if not 0.0 < args.alpha < 1.0:
+        raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
+    if args.max_extra_tests is not None and args.max_extra_tests < args.extra_tests:
+        raise OutOfRangeError(
+            f"--max-extra-tests = {args.max_extra_tests} must be at least --extra-tests = {args.extra_tests}"
+        )
     result = discover(
         load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
         criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
@@ -35,27 +42,27 @@ def register(sub) -> None:
     p.add_argument(
         "--out", type=output_dir, required=True, help="output folder (round0/, round1/, discover.json)"
     )
-    p.add_argument("--extra-tests", type=int, default=10,
+    p.add_argument("--extra-tests", type=integer(1, 50), default=10,
                    help="number of discrimination tests, 1-50 (default %(default)s)")  # fmt: skip
     p.add_argument(
         "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default %(default)s)"
     )
     p.add_argument("--criterion", default="T", choices=("T", "difference"),
                    help="T-optimal (models refitted, default) or the whitened difference of the fitted models")  # fmt: skip
-    p.add_argument("--n-poses", type=int, default=150,
+    p.add_argument("--n-poses", type=integer(1, 10000), default=150,
                    help="random poses of the candidate pool, each with every feasible hook, ring and tension "
                         "(default %(default)s)")  # fmt: skip
     p.add_argument("--always", action="store_true",
                    help="run the extra tests even after a decisive diagnosis: confirm the first name against "
                         "its closest rivals, or screen for an effect just below the level")  # fmt: skip
-    p.add_argument("--rounds", type=int, default=1,
+    p.add_argument("--rounds", type=integer(1, 5), default=1,
                    help="rounds of extra tests at most, 1-5: after the first, another runs while the "
                         "diagnosis is still undecided (default %(default)s)")  # fmt: skip
-    p.add_argument("--separation", type=float, nargs="?", const=25.0, default=None, metavar="T",
+    p.add_argument("--separation", type=number(0.0, 1e9, low_open=True), nargs="?", const=25.0, default=None, metavar="T",
                    help="size each round: from --extra-tests, one more test at a time until the smallest "
                         "predicted T over the rival pairs reaches T (noise-floor units; 25 without a value: "
                         "a 1-df test at 0.1 %% with 95 %% power)")  # fmt: skip
-    p.add_argument("--max-extra-tests", type=int, default=None,
+    p.add_argument("--max-extra-tests", type=integer(1, 50), default=None,
                    help="a sized round's largest size, --extra-tests to 50 (default 3 x --extra-tests)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true")

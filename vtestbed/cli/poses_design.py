@@ -31,9 +31,12 @@ def _prior(text: str, dof: int) -> np.ndarray:
         return stiffness_prior(text, dof, "--stiffness-prior")
     if not any(c.isdigit() for c in text):
         raise UnknownNameError("--stiffness-prior", text, NAMED_PRIORS)
-    return stiffness_prior(
-        parse_numbers(text, "--stiffness-prior", dof, "N*mm/rad") / 1e3, dof, "--stiffness-prior"
-    )
+    values = parse_numbers(text, "--stiffness-prior", dof, "N*mm/rad")
+    if not np.all(values > 0):
+        raise OutOfRangeError(
+            f"--stiffness-prior must be {dof} positive stiffness values [N*mm/rad], got {text!r}"
+        )
+    return stiffness_prior(values / 1e3, dof, "--stiffness-prior")
 
 
 def _names(text: str | None, option: str, kind: str, valid) -> list[str] | None:
