@@ -313,6 +313,8 @@ CASES = {
         "campaign.json", {"scenario": "s", "joint_names": [], "campaign": 5}
     ),
     "setup-nested-deep": setup_text(b"[" * 100_000 + b"]" * 100_000),
+    "setup-unknown-key": setup_error(block_edge=0.08),
+    "setup-target-kind": setup_error(target={"kind": "sphere"}),
 }
 
 

@@ -138,6 +138,11 @@ def scanner_pose_as_recorded(pose: np.ndarray) -> np.ndarray:
     return homogeneous(matrix_from_rotation_vector(rotation_vector(pose[:3, :3])), pose[:3, 3])
 
 
+SETUP_KEYS = ("format", "robot", "angle_convention", "block_in_flange", "sensor_in_flange", "block_edge_m",
+              "force_sensor", "notes", "target")  # fmt: skip
+TARGET_KEYS = ("kind", "file", "sha256", "extents_m", "face_margin_m", "mass_kg")  # target_mesh.setup_json
+
+
 def read_setup(root: str | Path) -> DatasetSetup:
     """setup.json, each field checked (:mod:`vtestbed.dataset_checks`), or a DatasetError naming it."""
     path = Path(root) / SETUP_FILE
@@ -156,6 +161,9 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
     ):
         if key not in data:
             raise DatasetError(f"{path}: key {key!r} is missing")
+    unknown = sorted(set(data) - set(SETUP_KEYS))
+    if unknown:  # a misspelt key would be ignored without a word (the scenario files refuse theirs too)
+        raise DatasetError(f"{path}: unknown key {unknown[0]!r}; valid keys: {', '.join(SETUP_KEYS)}")
     if data["angle_convention"] not in ("dh", "controller"):
         raise DatasetError(
             f"{path}: angle_convention must be 'dh' or 'controller', got {data['angle_convention']!r}"
@@ -181,6 +189,14 @@ def _target(target, path) -> dict | None:
         return None
     if not isinstance(target, dict):
         raise DatasetError(f"{path}: target must be a table (kind, file, face_margin_m, ...), got {target!r}")
+    if target.get("kind") != "mesh":
+        raise DatasetError(f"{path}: target.kind must be 'mesh' (the one target besides the plain block, which "
+                           f"has no target table), got {target.get('kind')!r}")  # fmt: skip
+    unknown = sorted(set(target) - set(TARGET_KEYS))
+    if unknown:
+        raise DatasetError(
+            f"{path}: target: unknown key {unknown[0]!r}; valid keys: {', '.join(TARGET_KEYS)}"
+        )
     if "face_margin_m" in target:
         checks.number(target["face_margin_m"], path, "target.face_margin_m", 0.0, 0.1, "m")
     return target
