@@ -145,6 +145,30 @@ def test_malformed_and_truncated_files_name_the_problem(tmp_path):
         write_ply(tmp_path / "no" / "such" / "dir.ply", pts)
 
 
+def test_points_beyond_the_header_count_are_refused_not_dropped(tmp_path):
+    """A header count below the data would silently drop the last points; bytes after the last
+    element are a damaged file. Both are refused; a face element after the vertices is not."""
+    pts = _synthetic_points(10)
+    raw = write_ply(tmp_path / "a.ply", pts).read_bytes()
+    (tmp_path / "few.ply").write_bytes(raw.replace(b"element vertex 10", b"element vertex 9", 1))
+    with pytest.raises(DatasetError, match=r"few\.ply: 24 bytes follow the 9 vertices the header announces"):
+        read_ply(tmp_path / "few.ply")
+    (tmp_path / "tail.ply").write_bytes(raw + b"junk")
+    with pytest.raises(DatasetError, match=r"tail\.ply: 4 bytes follow the 10 vertices"):
+        read_ply(tmp_path / "tail.ply")
+    text = write_ply(tmp_path / "t.ply", pts, binary=False).read_text()
+    (tmp_path / "few.txt.ply").write_text(text.replace("element vertex 10", "element vertex 8", 1))
+    with pytest.raises(DatasetError, match="2 more lines follow the 8 vertices"):
+        read_ply(tmp_path / "few.txt.ply")
+    head, body = text.split("end_header\n")
+    (tmp_path / "wide.ply").write_text(head + "end_header\n" + body.replace("\n", " 7\n", 1))
+    with pytest.raises(DatasetError, match="a vertex line that is not 3 numbers"):
+        read_ply(tmp_path / "wide.ply")
+    faces = text.replace("end_header", "element face 1\nproperty list uchar int vertex_indices\nend_header")
+    (tmp_path / "faces.ply").write_text(faces + "3 0 1 2\n")
+    np.testing.assert_allclose(read_ply(tmp_path / "faces.ply"), pts, rtol=1e-5)  # ASCII: 6 digits
+
+
 def test_bad_points_units_and_files_are_refused(tmp_path):
     for bad, shape in (
         (np.zeros((4, 2)), r"\(4, 2\)"),

@@ -94,9 +94,9 @@ def _vertices(raw: bytes, path: Path) -> np.ndarray:
         return empty
     fmt, elements, body = _header(raw, path)
     skip, vertex = 0, None
-    for name, count, props in elements:
+    for k, (name, count, props) in enumerate(elements):
         if name == "vertex":
-            vertex = (count, props)
+            vertex, last = (count, props), k == len(elements) - 1
             break
         if fmt == "ascii":
             skip += count
@@ -115,7 +115,7 @@ def _vertices(raw: bytes, path: Path) -> np.ndarray:
     if not {"x", "y", "z"} <= set(names):
         raise DatasetError(f"{path}: the vertex element has no x, y, z properties (has {', '.join(names)})")
     if fmt == "ascii":
-        values = _ascii_rows(raw[body:], skip, count, len(props), path)
+        values = _ascii_rows(raw[body:], skip, count, len(props), path, last)
         cols = [names.index(c) for c in "xyz"]
         return values[:, cols].astype(float)
     order = _ORDER[fmt]
@@ -126,6 +126,9 @@ def _vertices(raw: bytes, path: Path) -> np.ndarray:
             f"{path}: truncated: the header announces {count} vertices, the file holds "
             f"{max(0, len(raw) - start) // dtype.itemsize}"
         )
+    extra = len(raw) - (start + count * dtype.itemsize)
+    if last and extra > 0:  # nothing may follow the last element: the count or the file is wrong
+        raise DatasetError(_beyond_count(path, count, f"{extra} bytes"))
     table = np.frombuffer(raw, dtype=dtype, count=count, offset=start)
     return np.stack([table[c].astype(float) for c in "xyz"], axis=1)
 
@@ -159,12 +162,21 @@ def _header(raw: bytes, path: Path):
     raise DatasetError(f"{path}: PLY header without end_header")
 
 
-def _ascii_rows(body: bytes, skip: int, count: int, width: int, path: Path) -> np.ndarray:
-    lines = body.split(b"\n", skip + count)[skip : skip + count]
+def _beyond_count(path: Path, count: int, what: str) -> str:
+    return (f"{path}: {what} follow the {count} vertices the header announces, and no element after them: "
+            "a vertex count too small, or a damaged file")  # fmt: skip
+
+
+def _ascii_rows(body: bytes, skip: int, count: int, width: int, path: Path, last: bool) -> np.ndarray:
+    parts = body.split(b"\n", skip + count)
+    lines = parts[skip : skip + count]
     if len(lines) < count:
         raise DatasetError(f"{path}: the header announces {count} vertices, the file holds {len(lines)}")
+    rest = parts[skip + count] if len(parts) > skip + count else b""
+    if last and rest.strip():
+        raise DatasetError(_beyond_count(path, count, f"{len(rest.strip().splitlines())} more lines"))
     try:  # numpy's C parser: a lab's ASCII scan of 100 k points reads in a fraction of a second
-        values = np.loadtxt(lines, dtype=float, ndmin=2, usecols=range(width), encoding="ascii")
+        values = np.loadtxt(lines, dtype=float, ndmin=2, encoding="ascii")  # every line exactly `width`
     except ValueError:
         raise DatasetError(f"{path}: a vertex line that is not {width} numbers") from None
     if values.shape != (count, width):
