@@ -169,6 +169,29 @@ def _cloud_already_there(ctx):
     return line
 
 
+def _import_in_the_way(edit, out_file=None):
+    """A case: the complete manifest of :func:`_cloud_already_there` changed by ``edit(text)``,
+    imported into ``o`` (holding ``out_file`` when given): refused before any cloud is converted."""
+
+    def case(ctx):
+        from test_dataset import _setup
+
+        from vtestbed.dataset import write_setup
+        from vtestbed.lab import LabSetup
+
+        write_setup(ctx.tmp, _setup(LabSetup()))
+        manifest = ctx.tmp / "lab.toml"
+        manifest.write_text(edit(REPEAT_OWN_SCAN.replace('repeat_clouds = ["r1.pcd", "u.pcd"]\n', "")))
+        if out_file:
+            (ctx.tmp / "o").mkdir()
+            (ctx.tmp / "o" / out_file).write_text("{}")
+        line = cli(ctx, ["dataset", "import", str(manifest), "--out", str(ctx.tmp / "o")])
+        assert not (ctx.tmp / "o" / "clouds").exists()
+        return line
+
+    return case
+
+
 TWICE = [{"name": "link_compliance", "link": 2}, {"name": "link_compliance", "link": 2}]
 
 
@@ -260,6 +283,10 @@ CASES = {
         "lab.toml", NAMES_ALIKE, "dataset", "import", "{file}", "--out", "{tmp}/o"
     ),
     "import-cloud-exists": _cloud_already_there,
+    "import-pose-outside-limits": _import_in_the_way(
+        lambda t: t.replace("[0.0, -90.0, 90.0, 0.0, 0.0, 0.0]", "[0.0, -90.0, 90.0, 0.0, 130.0, 0.0]")
+    ),
+    "import-setup-exists": _import_in_the_way(lambda t: t, out_file="setup.json"),
     "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
     "diagnose-candidate-twice": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"

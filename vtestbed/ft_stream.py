@@ -146,6 +146,10 @@ def read_ft_csv(path: str | Path, torque_unit: str = "Nm") -> FTStream:
                     f"{path}: column {missing[0]} is missing{hint}; an F/T stream needs the columns "
                     f"{', '.join(wanted)}; the file has {', '.join(header) or 'no header'}"
                 )
+            twice = [c for c in wanted if header.count(c) > 1]
+            if twice:  # the first would be read and the other ignored without a word
+                raise DatasetError(f"{path}: column {twice[0]} appears {header.count(twice[0])} times in the "
+                                   f"header; each of {', '.join(wanted)} once")  # fmt: skip
             index = [header.index(c) for c in wanted]
             rows = []
             for fields in reader:

@@ -59,6 +59,7 @@ from .lab_manifest import (
 )
 from .output_folders import require_own_kind
 from .ply import MAX_CLOUD_COORDINATE_M, read_ply, write_ply
+from .robots import load_robot
 
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz")
 WINDOWS_FILE = "ft_windows.csv"
@@ -184,6 +185,13 @@ def import_dataset(
     out = Path(out)
     if (out / TESTS_FILE).exists():
         raise DatasetError(f"{out} already holds a dataset ({TESTS_FILE}); choose an empty or new folder")
+    for name in (SETUP_FILE, *REPEAT_FILES.values()):  # files a lab writes by hand, kept there
+        if (out / name).exists():
+            raise DatasetError(
+                f"{out / name} already exists: dataset import writes only new files (it would replace it); "
+                "choose a new or empty --out folder"
+            )
+    _require_poses_in_limits(spec, setup, manifest)
     require_own_kind(out, (), "vtestbed dataset import", DatasetError)  # a sweep's or a run's folder
     _require_new_clouds(spec, out)
     made = [d for d in (out / CLOUD_DIR, *(out / CLOUD_DIR).parents) if not d.exists()]
@@ -219,6 +227,18 @@ def _write_dataset(spec: dict, out: Path, setup: DatasetSetup, readings: dict, c
     for s in states:
         read_repeats(out, state=s)  # the dataset's own checks on what was written
     return ImportResult(out, read_tests(out, sensor_range=setup.sensor_range), readings)
+
+
+def _require_poses_in_limits(spec: dict, setup: DatasetSetup, manifest) -> None:
+    """Every test's pose within the robot's joint limits (identify would refuse the dataset later,
+    after every cloud was converted)."""
+    robot = load_robot(setup.robot)
+    for i, t in enumerate(spec["tests"]):
+        q = np.radians(t["q_deg"])
+        q = robot.controller_to_dh(q) if setup.angle_convention == "controller" else q
+        robot.check_pose(
+            q, field=f"{manifest}: tests[{i}] (test {t['id']!r}) pose ({setup.angle_convention} angles)"
+        )
 
 
 def _require_new_clouds(spec: dict, out: Path) -> None:
