@@ -214,3 +214,28 @@ def test_noise_floor_record_helpers():
     assert (
         "x y z 2.00 3.00 1.00 um, rx ry rz 10.00 0.00 20.00 urad (50 samples from 5 tests" in floor.summary()
     )
+
+
+def test_a_scan_copied_as_a_repeat_is_refused_unless_every_scan_repeats_itself():
+    """Two scans of a real block never give the same frame to the last bit; a copied file does, and
+    enters the floor as an exact zero (a floor too small). A perfect scanner repeats itself in every
+    test: that floor is zero, and allowed (test above)."""
+    from vtestbed.errors import DatasetError
+    from vtestbed.researcher.noise_floor import noise_floor_from_frames
+
+    rng = np.random.default_rng(3)
+
+    def frame():
+        f = np.eye(4)
+        f[:3, 3] = rng.normal(0.0, 5e-6, 3)
+        return f
+
+    a = frame()
+    noisy = {"T001": [a, a.copy(), frame()], "T002": [frame(), frame()]}
+    with pytest.raises(DatasetError, match=r"^ds/repeats.csv: test T001: its unloaded scan and repeat 1 give "
+                       r"bitwise the same block frame while the other scans differ \(1 such pair\)"):  # fmt: skip
+        noise_floor_from_frames(noisy, "ds/repeats.csv")
+    perfect = {"T001": [np.eye(4)] * 3, "T002": [np.eye(4)] * 2}
+    assert not np.any(noise_floor_from_frames(perfect).covariance)
+    noisy["T001"][1] = frame()  # a new scan: accepted, 3 samples
+    assert noise_floor_from_frames(noisy).n_samples == 3

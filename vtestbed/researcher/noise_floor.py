@@ -51,8 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
-from ..dataset_repeats import read_repeats
-from ..errors import OutOfRangeError
+from ..dataset_repeats import REPEATS_FILE, read_repeats
+from ..errors import DatasetError, OutOfRangeError
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from ..transforms import displacement_in_block_frame
@@ -283,7 +283,9 @@ def scan_deviations(frames: Sequence[np.ndarray]) -> np.ndarray:
     return np.array([displacement_in_block_frame(frames[0], f) for f in frames])
 
 
-def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) -> NoiseFloor:
+def noise_floor_from_frames(
+    frames_by_test: Mapping[str, Sequence[np.ndarray]], where: str = ""
+) -> NoiseFloor:
     """Pool the repeat scans of several tests into one :class:`NoiseFloor` (all pairs per test).
 
     Parameters
@@ -291,13 +293,15 @@ def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) 
     frames_by_test : mapping test_id -> sequence of (4, 4) arrays
         Per test, the fitted frames of the unloaded scan and its repeats (any one fixed frame).
         Tests with a single scan are skipped.
+    where : str
+        What holds the scans (a dataset's repeats file), to start an error message.
 
     Raises
     ------
     OutOfRangeError
         No test has two scans.
     """
-    total, dof, ids = np.zeros((6, 6)), 0, []
+    total, dof, ids, copies = np.zeros((6, 6)), 0, [], []
     for tid, frames in frames_by_test.items():
         n = len(frames)
         if n < 2:
@@ -305,11 +309,20 @@ def noise_floor_from_frames(frames_by_test: Mapping[str, Sequence[np.ndarray]]) 
         e = scan_deviations(frames)
         j, k = np.triu_indices(n, 1)
         d = e[k] - e[j]  # every pair's displacement: exactly zero for identical scans
+        copies += [(tid, int(a), int(b)) for a, b, row in zip(j, k, d) if not np.any(row)]
         total += (2.0 / n) * (d.T @ d)  # = 2 (n - 1) x the within-test sample covariance
         dof += n - 1
         ids.append(tid)
     if dof == 0:
         raise OutOfRangeError("no test has a repeat scan: a noise floor needs at least two scans of one test")
+    if copies and np.any(total):  # a noise-free scanner repeats itself everywhere; a lab's scans never do
+        tid, a, b = copies[0]
+        scans = ["its unloaded scan" if x == 0 else f"repeat {x}" for x in (a, b)]
+        raise DatasetError(
+            f"{where + ': ' if where else ''}test {tid}: {scans[0]} and {scans[1]} give bitwise the same block frame while the other scans "
+            f"differ ({len(copies)} such pair{'s' * (len(copies) > 1)}): the same scan twice (a copied file?), "
+            "which would enter the noise floor as an exact zero; each repeat must be a new scan"
+        )
     return NoiseFloor(total / dof, dof, len(ids), tuple(ids))
 
 
@@ -324,7 +337,7 @@ def estimate_noise_floor(
     :func:`repeat_scan_frames`'.
     """
     frames = repeat_scan_frames(root, measurements, progress)
-    return None if frames is None else noise_floor_from_frames(frames)
+    return None if frames is None else noise_floor_from_frames(frames, str(Path(root) / REPEATS_FILE))
 
 
 def repeat_scan_frames(

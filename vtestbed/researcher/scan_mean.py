@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, read_setup
-from ..dataset_repeats import read_repeats
+from ..dataset_repeats import REPEATS_FILE, read_repeats
 from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import DEFAULT_ALPHA, require_floor
@@ -191,7 +191,9 @@ def load_with_floor(
     """
     setup, measurements = load_measurements(root)
     frames = repeat_scan_frames(root, measurements)
-    floor = require_floor(None if frames is None else noise_floor_from_frames(frames), root)
+    floor = require_floor(
+        None if frames is None else noise_floor_from_frames(frames, str(Path(root) / REPEATS_FILE)), root
+    )
     loaded = loaded_scan_frames(root, measurements)
     measurements, floor = against_scan_mean(measurements, frames, floor, loaded, creep_alpha)
     return setup, measurements, floor
