@@ -13,6 +13,7 @@ import pytest
 from conftest import paper_scenario_data
 
 from vtestbed.errors import ConvergenceError, OutOfRangeError, ScenarioError
+from vtestbed.experiment import check_world_effects, simulate
 from vtestbed.scenario import load_scenario
 from vtestbed.scenario_writer import toml_text
 from vtestbed.world.effects import NonlinearJoint
@@ -52,7 +53,7 @@ def test_a_mild_softening_spring_keeps_a_stable_equilibrium():
     assert 0.0 < effect.tangent_stiffness(k, dq) < k
 
 
-def test_a_coupling_that_breaks_positive_definiteness_is_refused_when_the_file_is_read(tmp_path):
+def test_a_coupling_that_breaks_positive_definiteness_is_refused_before_anything_is_written(tmp_path):
     truth = load_truth("kuka_kr60_3").stiffness_true
     limit = np.sqrt(truth[4] * truth[5])  # |k56| < sqrt(k5 k6)
     data = paper_scenario_data(2, 1, "coupled", 1)
@@ -62,13 +63,18 @@ def test_a_coupling_that_breaks_positive_definiteness_is_refused_when_the_file_i
     }
     path.write_text(toml_text(data))
     with pytest.raises(ScenarioError) as info:
-        load_scenario(path)
+        simulate(load_scenario(path), tmp_path / "out")
     message = str(info.value)
     assert message.startswith(f"{path}: world.effects[0] (joint_coupling).stiffness_Nm_per_rad")
     assert f"sqrt(k_i k_j) = {limit:.4g} N*m/rad" in message
-    data["world"]["effects"][0]["stiffness_Nm_per_rad"] = -0.99 * limit  # inside: accepted
+    assert not (tmp_path / "out").exists()
+    data["world"]["effects"][0]["stiffness_Nm_per_rad"] = -0.99 * limit  # inside: the rig builds
     path.write_text(toml_text(data))
-    assert load_scenario(path).effects[0].stiffness_Nm_per_rad == pytest.approx(-0.99 * limit)
+    sc = load_scenario(path)
+    check_world_effects(sc)
+    assert Rig(sc.robot, sc.lab, effects=sc.effects).effects[0].stiffness_Nm_per_rad == pytest.approx(
+        -0.99 * limit
+    )
 
 
 def test_an_effect_that_makes_the_arm_sag_is_refused():

@@ -254,7 +254,7 @@ CASES = {
     "scen-not-toml": load(text=b"name = kr60\n"),
     "scen-sensor-range-tiny": load(setter("lab.force_sensor", {"range_N_Nm": [0.001] * 6})),
     "scen-robot-number": load(setter("robot", 3)),
-    "scen-coupling-indefinite": load(
+    "scen-coupling-indefinite": simulate(
         setter(
             "world", {"effects": [{"name": "joint_coupling", "joints": [5, 6], "stiffness_Nm_per_rad": -1e8}]}
         )

@@ -26,7 +26,7 @@ from . import comparison, ply
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
 from .dataset_identification import identify_dataset
 from .dataset_repeats import LoadedRepeatWriter, RepeatRecord, RepeatWriter, repeat_cloud_path
-from .errors import DatasetError, ScanError, SensorOverloadError
+from .errors import DatasetError, ScanError, ScenarioError, SensorOverloadError, VtestbedError
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
 from .lab import MIN_TENSION_N, LabSetup
@@ -65,6 +65,22 @@ def test_id(group: str, index: int) -> str:
 
 
 test_id.__test__ = False  # a naming helper, not a pytest test
+
+
+def check_world_effects(scenario: Scenario) -> None:
+    """Each hidden effect against the robot and its true stiffness (a coupling that would make the
+    stiffness matrix indefinite, a joint the robot lacks), as the rig checks them, with the
+    scenario file's name (the scenario reader does not read the truth)."""
+    effects = tuple(e for e in scenario.effects if not e.is_null)  # numbered as the rig numbers them
+    if not effects:
+        return
+    truth = load_truth(scenario.robot_name)
+    for i, effect in enumerate(effects):
+        try:
+            effect.check_world(scenario.robot, truth, f"world.effects[{i}] ({effect.name})")
+        except VtestbedError as exc:
+            where = f"{scenario.source}: " if scenario.source else ""
+            raise ScenarioError(f"{where}{exc}") from None
 
 
 def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
@@ -141,6 +157,7 @@ def simulate(
     out = Path(out)
     timings = timings or Timings()
     lab = scenario.lab
+    check_world_effects(scenario)  # before the folder is made: a refused world writes nothing
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out, "dataset folder", DatasetError):  # one writer at a time
         rig = Rig(scenario.robot, lab, truth=load_truth(scenario.robot_name), effects=scenario.effects)

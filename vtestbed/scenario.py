@@ -309,7 +309,6 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
     force = _force_sensor_plan(data.get("force_sensor", {}), f)
     world = f.table(data.get("world", {}), "world", ("effects",))
     effects = parse_effects(world.get("effects", []), f)
-    _check_effects_in_world(effects, robot, f)
     ident = f.table(data.get("identification", {}), "identification", ("method", "reference"))
     method = f.choice(ident.get("method", DEFAULT_METHOD), "identification.method", METHODS)
     reference = f.choice(ident.get("reference", DEFAULT_REFERENCE), "identification.reference", REFERENCES)
@@ -350,23 +349,6 @@ def parse_scenario(data: dict, source: Path | str | None = None) -> Scenario:
         source=Path(source) if source else None,
         raw=data,
     )
-
-
-def _check_effects_in_world(effects, robot: RobotDescription, f: Fields) -> None:
-    """Each hidden effect against the robot and its true stiffness (a coupling that would make the
-    stiffness matrix indefinite, a joint the robot lacks): when the file is read, naming it, not
-    when the world is built."""
-    if not effects:
-        return
-    from .world.truth import load_truth  # the world's own file: read only when the world is edited
-
-    truth = load_truth(robot.name)
-    for i, effect in enumerate(effects):
-        try:
-            effect.check_world(robot, truth, f"world.effects[{i}] ({effect.name})")
-        except VtestbedError as exc:
-            where = f"{f.source}: " if f.source else ""
-            raise ScenarioError(f"{where}{exc}") from None
 
 
 def _check_floor_samples(repeats: int, n_tests: int, f: Fields) -> None:
