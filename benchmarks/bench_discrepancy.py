@@ -58,24 +58,20 @@ names they share from here.
 
 from __future__ import annotations
 
+import argparse
+import json
+import multiprocessing
 import os
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_var] = "1"  # before numpy: also in every spawned worker, which imports this module
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import multiprocessing  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import _discrepancy_worlds  # noqa: E402
-import numpy as np  # noqa: E402
-from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap  # noqa: E402
-from _discrepancy_tables import clopper_pearson, report  # noqa: E402
-from _discrepancy_worlds import (  # noqa: E402  (the names bench_discriminate / bench_two_effects use)
+import _discrepancy_worlds  # before numpy: it sets the BLAS threads to 1 (in every spawned worker too)
+import numpy as np
+from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap
+from _discrepancy_tables import clopper_pearson, report
+from _discrepancy_worlds import (  # the names bench_discriminate / bench_two_effects use
     ALPHA,
     CHUNK,
     DEFAULT_EFFECTS,
@@ -92,8 +88,8 @@ from _discrepancy_worlds import (  # noqa: E402  (the names bench_discriminate /
     world_key,
 )
 
-from vtestbed.researcher.diagnose import RANK_CRITERIA  # noqa: E402
-from vtestbed.world.effects import EFFECTS  # noqa: E402
+from vtestbed.researcher.diagnose import RANK_CRITERIA
+from vtestbed.world.effects import EFFECTS
 
 __all__ = ["ALPHA", "CHUNK", "SCENARIO", "SEED0", "SIZE_FIELDS", "clopper_pearson", "expected_label",
            "run_chunk", "scaled"]  # fmt: skip
