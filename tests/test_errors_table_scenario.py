@@ -287,6 +287,15 @@ CASES = {
         lambda t: t.replace("[0.0, -90.0, 90.0, 0.0, 0.0, 0.0]", "[0.0, -90.0, 90.0, 0.0, 130.0, 0.0]")
     ),
     "import-setup-exists": _import_in_the_way(lambda t: t, out_file="setup.json"),
+    "manifest-one-stream-no-windows": given(
+        "lab.toml",
+        REPEAT_OWN_SCAN.replace('ft_loaded = "l.csv"', 'ft_loaded = "u.csv"'),
+        "dataset",
+        "import",
+        "{file}",
+        "--out",
+        "{tmp}/o",
+    ),
     "diagnose-not-a-dataset": given("notes.txt", "", "diagnose", "{tmp}"),
     "diagnose-candidate-twice": given(
         "notes.txt", "", "diagnose", "{tmp}", "--candidates", "link_compliance,link_compliance"

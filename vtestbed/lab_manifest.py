@@ -141,6 +141,16 @@ def _test(f: Fields, base: Path, value, i: int, window) -> dict:
         out[REPEAT_KEYS[s]] = _repeat_clouds(
             f, base, t.get(REPEAT_KEYS[s], []), f"{where}.{REPEAT_KEYS[s]}", s
         )
+    same = out["ft_unloaded"].resolve() == out["ft_loaded"].resolve()
+    windows = [out[f"window_{s}_s"] for s in STATES]
+    if same and (None in windows or windows[0] == windows[1]):
+        # one stream through the whole test is fine, but only its windows tell the states apart: the
+        # quietest window found would be one state's for both, and the load would read as zero
+        raise f.error(
+            f"{where}.ft_loaded",
+            f"is the same stream as ft_unloaded ({out['ft_loaded']}): give each state its own window in it "
+            "(window_unloaded_s and window_loaded_s, [start, end] in s), or each state its own file",
+        )
     return out
 
 
