@@ -272,3 +272,17 @@ def test_identify_prints_the_floor_only_with_repeats(datasets, capsys):
     assert len(line) == 1 and "um" in line[0] and "urad" in line[0] and "(8 samples from 4 tests" in line[0]
     assert cli.main(["identify", str(without), "--quiet", "--no-truth", "--json"]) == 0
     assert "noise_floor" not in json.loads(capsys.readouterr().out)
+
+
+def test_extra_columns_may_repeat_and_a_bad_loaded_row_is_left_to_its_own_read(datasets, tmp_path):
+    """A spreadsheet's trailing empty columns (a header ",,") are extra columns, read as before;
+    only the columns vtestbed reads must be unique. A NUL byte in loaded_repeats.csv does not
+    break the read of repeats.csv (its own read refuses it, naming the line)."""
+    d = _with_repeats(datasets, tmp_path, "test_id,repeat,cloud,,\nT003,1,clouds/extra.ply,,\n")
+    assert [(r.test_id, r.repeat) for r in read_repeats(d)] == [("T003", 1)]
+    (d / "loaded_repeats.csv").write_text("test_id,repeat,cloud\nT003,1,clouds/a\0b.ply\n")
+    assert [(r.test_id, r.repeat) for r in read_repeats(d)] == [("T003", 1)]
+    with pytest.raises(
+        DatasetError, match=r"loaded_repeats.csv line 2 \(test 'T003'\): cloud .* must be a path inside"
+    ):
+        read_repeats(d, state="loaded")

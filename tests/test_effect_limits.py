@@ -92,3 +92,18 @@ def test_an_effect_that_makes_the_arm_sag_is_refused():
         OutOfRangeError, match=r"joint2 deflects -?[\d.]+ mrad .* beyond 50 mrad: .*gravity_compensator"
     ):
         rig.solve()
+
+
+def test_an_effect_is_named_by_its_place_in_the_file_when_a_null_one_comes_first(tmp_path):
+    """A zero-size effect is off (dropped from the world), not renumbered: the coupling after it is
+    world.effects[1], as in the file."""
+    data = paper_scenario_data(2, 1, "numbered", 1)
+    data["world"] = {"effects": [{"name": "gravity_compensator", "spring_rate_N_per_m": 0.0},
+                                 {"name": "joint_coupling", "joints": [5, 6], "stiffness_Nm_per_rad": -1e8}]}  # fmt: skip
+    path = tmp_path / "numbered.toml"
+    path.write_text(toml_text(data))
+    with pytest.raises(ScenarioError, match=r"numbered.toml: world.effects\[1\] \(joint_coupling\)"):
+        check_world_effects(load_scenario(path))
+    sc = load_scenario(path)
+    with pytest.raises(OutOfRangeError, match=r"^world.effects\[1\] \(joint_coupling\)"):
+        Rig(sc.robot, sc.lab, effects=sc.effects)

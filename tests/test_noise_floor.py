@@ -232,8 +232,8 @@ def test_a_scan_copied_as_a_repeat_is_refused_unless_every_scan_repeats_itself()
 
     a = frame()
     noisy = {"T001": [a, a.copy(), frame()], "T002": [frame(), frame()]}
-    with pytest.raises(DatasetError, match=r"^ds/repeats.csv: test T001: its unloaded scan and repeat 1 give "
-                       r"bitwise the same block frame while the other scans differ \(1 such pair\)"):  # fmt: skip
+    with pytest.raises(DatasetError, match=r"^ds/repeats.csv: test T001: its own scan and a repeat of the unloaded block give "
+                       r"bitwise the same frame while the other scans differ \(1 such pair\)"):  # fmt: skip
         noise_floor_from_frames(noisy, "ds/repeats.csv")
     perfect = {"T001": [np.eye(4)] * 3, "T002": [np.eye(4)] * 2}
     assert not np.any(noise_floor_from_frames(perfect).covariance)

@@ -153,9 +153,11 @@ def test_points_beyond_the_header_count_are_refused_not_dropped(tmp_path):
     (tmp_path / "few.ply").write_bytes(raw.replace(b"element vertex 10", b"element vertex 9", 1))
     with pytest.raises(DatasetError, match=r"few\.ply: 24 bytes follow the 9 vertices the header announces"):
         read_ply(tmp_path / "few.ply")
-    (tmp_path / "tail.ply").write_bytes(raw + b"junk")
-    with pytest.raises(DatasetError, match=r"tail\.ply: 4 bytes follow the 10 vertices"):
+    (tmp_path / "tail.ply").write_bytes(raw + b"junk" * 6)  # a whole vertex's worth
+    with pytest.raises(DatasetError, match=r"tail\.ply: 24 bytes follow the 10 vertices"):
         read_ply(tmp_path / "tail.ply")
+    (tmp_path / "newline.ply").write_bytes(raw + b"\n")  # a writer's trailing newline: read as before
+    np.testing.assert_array_equal(read_ply(tmp_path / "newline.ply"), pts)
     text = write_ply(tmp_path / "t.ply", pts, binary=False).read_text()
     (tmp_path / "few.txt.ply").write_text(text.replace("element vertex 10", "element vertex 8", 1))
     with pytest.raises(DatasetError, match="2 more lines follow the 8 vertices"):

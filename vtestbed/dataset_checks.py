@@ -132,7 +132,7 @@ def read_csv(path: Path, columns: list[str], what: str) -> list[tuple[int, dict]
                     f"{path}: columns missing: {', '.join(missing)} (columns: {', '.join(columns)}; "
                     f"comma-separated; the file's header has {has})"
                 )
-            twice = sorted({c for c in header if header.count(c) > 1})
+            twice = sorted({c for c in columns if header.count(c) > 1})  # the columns read; extras may repeat
             if twice:  # the last of two columns would win without a word
                 raise DatasetError(
                     f"{path}: column {twice[0]!r} appears {header.count(twice[0])} times in the header; "

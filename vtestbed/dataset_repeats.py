@@ -139,7 +139,7 @@ def _other_repeats(root: Path, state: str) -> dict:
     for line, row in checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file"):
         text = (row.get("cloud") or "").strip()
         cloud = root / text
-        if text and cloud.resolve().is_relative_to(root.resolve()):
+        if text and "\0" not in text and cloud.resolve().is_relative_to(root.resolve()):
             seen[checks.file_key(cloud)] = (row.get("test_id"), row.get("repeat"), f"{line} of {path}")
     return seen
 

@@ -26,7 +26,14 @@ from . import comparison, ply
 from .dataset import CLOUD_DIR, TRUTH_FILE, DatasetSetup, TestRecord, TestWriter, write_setup
 from .dataset_identification import identify_dataset
 from .dataset_repeats import LoadedRepeatWriter, RepeatRecord, RepeatWriter, repeat_cloud_path
-from .errors import DatasetError, ScanError, ScenarioError, SensorOverloadError, VtestbedError
+from .errors import (
+    DatasetError,
+    OutOfRangeError,
+    ScanError,
+    ScenarioError,
+    SensorOverloadError,
+    VtestbedError,
+)
 from .experiment_resume import check_finished, lost_clouds, start_truth
 from .files import folder_lock, write_json_atomic
 from .lab import MIN_TENSION_N, LabSetup
@@ -71,11 +78,12 @@ def check_world_effects(scenario: Scenario) -> None:
     """Each hidden effect against the robot and its true stiffness (a coupling that would make the
     stiffness matrix indefinite, a joint the robot lacks), as the rig checks them, with the
     scenario file's name (the scenario reader does not read the truth)."""
-    effects = tuple(e for e in scenario.effects if not e.is_null)  # numbered as the rig numbers them
-    if not effects:
+    if all(e.is_null for e in scenario.effects):
         return
     truth = load_truth(scenario.robot_name)
-    for i, effect in enumerate(effects):
+    for i, effect in enumerate(scenario.effects):  # numbered as in the file; a null effect is off
+        if effect.is_null:
+            continue
         try:
             effect.check_world(scenario.robot, truth, f"world.effects[{i}] ({effect.name})")
         except VtestbedError as exc:
@@ -103,6 +111,11 @@ def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):
             )  # fmt: skip
         except (ScanError, SensorOverloadError) as exc:
             raise test_error(scenario, group, i, exc) from None
+        except OutOfRangeError as exc:  # the world's springs at this test's pose and load (rig._equilibrium)
+            where = f"{scenario.source}: " if scenario.source else ""
+            raise OutOfRangeError(
+                f"{where}{pose_field(group, i)} (test {test_id(group, i)}): {exc}"
+            ) from None
         return phys, test_timings
 
     return physics_in_order(make_rig, run, jobs)

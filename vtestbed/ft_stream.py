@@ -172,8 +172,8 @@ def read_ft_csv(path: str | Path, torque_unit: str = "Nm") -> FTStream:
     bad = np.flatnonzero(np.diff(time) <= 0)
     if bad.size:
         raise DatasetError(
-            f"{path}: column {TIME_COLUMN} must increase strictly; row {bad[0] + 2} ({time[bad[0] + 1]:g} s) "
-            f"does not follow row {bad[0] + 1} ({time[bad[0]]:g} s)"
+            f"{path}: column {TIME_COLUMN} must increase strictly; row {bad[0] + 2} ({time[bad[0] + 1]:.15g} s) "
+            f"does not follow row {bad[0] + 1} ({time[bad[0]]:.15g} s)"
         )
     wrench = data[:, 1:].copy()
     wrench[:, 3:] *= TORQUE_UNITS[torque_unit]

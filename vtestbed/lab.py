@@ -379,7 +379,8 @@ def parse_lab(table, fields, robot=None) -> LabSetup:
             lab = dataclasses.replace(lab, **{attr: dataclasses.replace(getattr(lab, attr), **changes)})
     top, source = lab.max_tension
     if top < MIN_TENSION_N:  # every tension would be refused, and the refusal would name the test
-        part = "force_sensor.range_N_Nm" if source.endswith("force range") else "wire"
+        part = ("force_sensor.range_N_Nm" if source.endswith("force range")
+                else "max_tension_N" if "max_tension_N" in source else "wire")  # fmt: skip
         raise fields.error(
             f"lab.{part}",
             f"leaves no wire tension to test with: {source} caps it at {top:g} N, below the "

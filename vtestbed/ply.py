@@ -127,7 +127,7 @@ def _vertices(raw: bytes, path: Path) -> np.ndarray:
             f"{max(0, len(raw) - start) // dtype.itemsize}"
         )
     extra = len(raw) - (start + count * dtype.itemsize)
-    if last and extra > 0:  # nothing may follow the last element: the count or the file is wrong
+    if last and extra >= dtype.itemsize:  # a whole vertex more (a trailing newline is a writer's habit)
         raise DatasetError(_beyond_count(path, count, f"{extra} bytes"))
     table = np.frombuffer(raw, dtype=dtype, count=count, offset=start)
     return np.stack([table[c].astype(float) for c in "xyz"], axis=1)

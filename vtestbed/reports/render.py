@@ -13,6 +13,7 @@ from pathlib import Path
 
 from markupsafe import Markup
 
+from ..errors import VtestbedError
 from ..files import write_atomic
 from . import sections_campaign, sections_diagnosis, sections_run
 from .blocks import Num, Section
@@ -94,6 +95,8 @@ def write_report(root: str | Path, out: str | Path | None = None) -> Path:
     out = Path(root) / REPORT_FILE if out is None else Path(out)
     try:
         html = render(folder)
+    except VtestbedError:  # the dataset's own errors (the scene reads it): they name their files
+        raise
     except (KeyError, TypeError, AttributeError, IndexError, ValueError) as exc:
         if folder.kind == "run":  # check_run read every field the run sections use: a defect of ours
             raise

@@ -116,7 +116,8 @@ def loaded_scatter(
         len(f) > 1 for f in loaded_frames.values()
     ):
         return None
-    unloaded, loaded = noise_floor_from_frames(unloaded_frames), noise_floor_from_frames(loaded_frames)
+    unloaded = noise_floor_from_frames(unloaded_frames)
+    loaded = noise_floor_from_frames(loaded_frames, "the loaded repeats (loaded_repeats.csv)", "loaded")
     var_loaded, var_unloaded = np.diag(loaded.covariance), np.diag(unloaded.covariance)
     with np.errstate(divide="ignore", invalid="ignore"):  # a perfect (simulated) scanner: 0 / 0
         ratio = np.where(var_unloaded > 0, var_loaded / var_unloaded, np.where(var_loaded > 0, np.inf, 1.0))

@@ -117,7 +117,7 @@ def identify_with_model(root, model_path) -> dict:
     base = fit_model(ctx, white, [])
     terms = identifiable(ctx, white, terms, base.compliance)
     try:
-        fit = _fit_determined(ctx, white, terms, base, model_path)
+        fit = _fit_determined(ctx, white, terms, base, model_path, root)
         gap = validation_gap(ModelContext(valid, setup, kin, exact), white, fit, terms)
     except ConvergenceError as exc:  # compliances far off (too many terms for the tests): no statics
         raise DatasetError(
@@ -135,7 +135,7 @@ def identify_with_model(root, model_path) -> dict:
 COLLINEAR_CONDITION = 1e6
 
 
-def _fit_determined(ctx, white, terms, base, model_path):
+def _fit_determined(ctx, white, terms, base, model_path, root):
     """The fit of ``base`` plus ``terms``, each of which must add as many directions as it has
     parameters, or least squares would split the shared ones by minimum norm and report a small
     std. diagnose's search never names a term that adds no direction (its likelihood ratio has no
@@ -143,6 +143,13 @@ def _fit_determined(ctx, white, terms, base, model_path):
     earlier one (link 2 contains ``joint_coupling(2,3)``), the search's backward step drops the
     earlier one (df 0). The terms are added one at a time; the last fit is the model's."""
     fit = base
+    s = scaled_svd(base.design)[1]
+    if s[0] > COLLINEAR_CONDITION * s[-1]:  # the tests alone: no term to blame
+        raise DatasetError(
+            f"{root}: the stiffnesses alone are nearly collinear on its tests (condition number of the scaled "
+            f"columns {s[0] / s[-1]:.2g}, valid: below {COLLINEAR_CONDITION:g}): the tests do not determine "
+            "them, let alone the model file's terms; add tests at other poses (vtestbed poses design)"
+        )
     for k, term in enumerate(terms):
         grown = fit_model(ctx, white, terms[: k + 1])
         if grown.rank - fit.rank < len(term.params):

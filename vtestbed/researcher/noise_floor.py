@@ -284,7 +284,7 @@ def scan_deviations(frames: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def noise_floor_from_frames(
-    frames_by_test: Mapping[str, Sequence[np.ndarray]], where: str = ""
+    frames_by_test: Mapping[str, Sequence[np.ndarray]], where: str = "", state: str = "unloaded"
 ) -> NoiseFloor:
     """Pool the repeat scans of several tests into one :class:`NoiseFloor` (all pairs per test).
 
@@ -293,8 +293,8 @@ def noise_floor_from_frames(
     frames_by_test : mapping test_id -> sequence of (4, 4) arrays
         Per test, the fitted frames of the unloaded scan and its repeats (any one fixed frame).
         Tests with a single scan are skipped.
-    where : str
-        What holds the scans (a dataset's repeats file), to start an error message.
+    where, state : str
+        What holds the scans (a dataset's repeats file) and which block they show, for an error message.
 
     Raises
     ------
@@ -316,12 +316,13 @@ def noise_floor_from_frames(
     if dof == 0:
         raise OutOfRangeError("no test has a repeat scan: a noise floor needs at least two scans of one test")
     if copies and np.any(total):  # a noise-free scanner repeats itself everywhere; a lab's scans never do
-        tid, a, b = copies[0]
-        scans = ["its unloaded scan" if x == 0 else f"repeat {x}" for x in (a, b)]
+        tid = copies[0][0]
+        scans = "its own scan and a repeat" if copies[0][1] == 0 else "two of its repeats"
         raise DatasetError(
-            f"{where + ': ' if where else ''}test {tid}: {scans[0]} and {scans[1]} give bitwise the same block frame while the other scans "
-            f"differ ({len(copies)} such pair{'s' * (len(copies) > 1)}): the same scan twice (a copied file?), "
-            "which would enter the noise floor as an exact zero; each repeat must be a new scan"
+            f"{where + ': ' if where else ''}test {tid}: {scans} of the {state} block give bitwise the same "
+            f"frame while the other scans differ ({len(copies)} such pair{'s' * (len(copies) > 1)}): the same "
+            "scan twice (a copied file?), which would enter the noise floor as an exact zero; each repeat must "
+            "be a new scan"
         )
     return NoiseFloor(total / dof, dof, len(ids), tuple(ids))
 

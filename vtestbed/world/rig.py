@@ -74,8 +74,10 @@ class Rig:
         self.lab = lab or PAPER_LAB
         self.truth = truth or load_truth(self.robot.name)
         self.effects = tuple(e for e in effects if not e.is_null)
-        for i, effect in enumerate(self.effects):
-            effect.check_world(self.robot, self.truth, f"world.effects[{i}] ({effect.name})")
+        # each kept effect's place in the scenario's list (null ones are dropped, not renumbered)
+        self._effect_fields = tuple(f"world.effects[{i}]" for i, e in enumerate(effects) if not e.is_null)
+        for field, effect in zip(self._effect_fields, self.effects):
+            effect.check_world(self.robot, self.truth, f"{field} ({effect.name})")
         self._joint_effects = tuple(e for e in self.effects if e.has_joint_forces)
         self.model = mjcf.build_scene_spec(self.robot, self.truth, self.lab, self.effects).compile()
         if not gravity:
@@ -287,12 +289,12 @@ class Rig:
         while every such joint's tangent stiffness stays positive (with ``any_softening``, for the
         equilibrium's own failure, any softening spring is named)."""
         deflection = qpos[self._joint_qpos] - self._q_cmd
-        for i, effect in enumerate(self.effects):
+        for field, effect in zip(self._effect_fields, self.effects):
             if getattr(effect, "k3_Nm_per_rad3", 0.0) < 0:
                 k = float(self.truth.stiffness_true[effect.joint - 1])
                 dq = float(deflection[effect.joint - 1])
                 if any_softening or not effect.tangent_stiffness(k, dq) > 0:
-                    return effect.past_peak(k, None if any_softening else dq, f"world.effects[{i}]")
+                    return effect.past_peak(k, None if any_softening else dq, field)
         return ""
 
     def solve(self, max_iterations: int = 50, tol: float | None = None) -> RigState:
@@ -352,7 +354,7 @@ class Rig:
                     f"could not tighten the wire to {tension:g} N: reached {state.wire_tension:.9g} N "
                     f"(tolerance {TENSION_TOL:g} N)"
                 )
-        except ConvergenceError:
+        except (ConvergenceError, OutOfRangeError):  # a world past its springs (rig._equilibrium) too
             self.slacken_wire()  # never leave the wire replaced by its held pull
             raise
         self._q_guess = eq.qpos.copy()
