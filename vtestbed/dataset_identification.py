@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .dataset_repeats import REPEATS_FILE
 from .errors import UnknownNameError
 from .researcher.measure import identify_measurements, load_measurements
 from .robots import load_robot
@@ -86,12 +85,10 @@ def identify_dataset_with_floor(
     t1 = time.perf_counter()
     noise_floor = None
     if floor or method == "gls_floor" or reference != "scan":  # None without repeats: gls_floor says so
-        from .researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+        from .researcher.noise_floor import dataset_floor, repeat_scan_frames
 
         frames = repeat_scan_frames(root, measurements)
-        noise_floor = (
-            None if frames is None else noise_floor_from_frames(frames, str(Path(root) / REPEATS_FILE))
-        )
+        noise_floor = dataset_floor(root, frames)
         loaded = loaded_scan_frames(root, measurements) if reference != "scan" else None
         measurements, noise_floor = against_reference(
             reference, measurements, frames, noise_floor, root, loaded

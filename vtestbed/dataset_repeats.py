@@ -137,10 +137,11 @@ def _other_repeats(root: Path, state: str) -> dict:
         return {}
     seen = {}
     for line, row in checks.read_csv(path, REPEAT_COLUMNS, "repeat scans file"):
-        text = (row.get("cloud") or "").strip()
-        cloud = root / text
-        if text and "\0" not in text and cloud.resolve().is_relative_to(root.resolve()):
-            seen[checks.file_key(cloud)] = (row.get("test_id"), row.get("repeat"), f"{line} of {path}")
+        try:
+            cloud = checks.cloud_path(root, row["cloud"], str(path), "cloud", "")
+        except DatasetError:
+            continue
+        seen[checks.file_key(cloud)] = (row.get("test_id"), row.get("repeat"), f"{line} of {path}")
     return seen
 
 

@@ -337,7 +337,12 @@ def estimate_noise_floor(
     ``noise_floor_from_frames(repeat_scan_frames(...))``; the arguments and errors are
     :func:`repeat_scan_frames`'.
     """
-    frames = repeat_scan_frames(root, measurements, progress)
+    return dataset_floor(root, repeat_scan_frames(root, measurements, progress))
+
+
+def dataset_floor(root: str | Path, frames) -> NoiseFloor | None:
+    """:func:`noise_floor_from_frames` of a dataset's repeat frames (:func:`repeat_scan_frames`),
+    its errors naming the dataset's repeats file; None when it has none (``frames`` None)."""
     return None if frames is None else noise_floor_from_frames(frames, str(Path(root) / REPEATS_FILE))
 
 

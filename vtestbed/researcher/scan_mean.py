@@ -43,13 +43,13 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import DatasetSetup, read_setup
-from ..dataset_repeats import REPEATS_FILE, read_repeats
+from ..dataset_repeats import read_repeats
 from ..errors import DatasetError, UnknownNameError
 from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector
 from .diagnose import DEFAULT_ALPHA, require_floor
 from .loaded_scatter import loaded_scatter
 from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
-from .noise_floor import NoiseFloor, noise_floor_from_frames, repeat_scan_frames, scan_deviations
+from .noise_floor import NoiseFloor, dataset_floor, repeat_scan_frames, scan_deviations
 
 __all__ = [
     "CREEP_ALPHA",
@@ -191,9 +191,7 @@ def load_with_floor(
     """
     setup, measurements = load_measurements(root)
     frames = repeat_scan_frames(root, measurements)
-    floor = require_floor(
-        None if frames is None else noise_floor_from_frames(frames, str(Path(root) / REPEATS_FILE)), root
-    )
+    floor = require_floor(dataset_floor(root, frames), root)
     loaded = loaded_scan_frames(root, measurements)
     measurements, floor = against_scan_mean(measurements, frames, floor, loaded, creep_alpha)
     return setup, measurements, floor
