@@ -302,14 +302,13 @@ def parse_campaign(data: dict, source: Path | str | None = None) -> Campaign:
                 f"{cell.n_tests} tests exceed the base scenario's {scenario.n_tests} (pose_set 'scenario' "
                 "uses the scenario's own tests)",
             )
-        if cell.method == "gls_floor" and scenario.scanner.repeats * cell.n_tests < _min_floor_samples():
-            least = -(-_min_floor_samples() // scenario.scanner.repeats)
+        repeats = scenario.scanner.repeats
+        if cell.method == "gls_floor" and repeats * cell.n_tests < (need := _min_floor_samples()):
             raise f.error(
                 "campaign.axes.n_tests",
-                f"{cell.n_tests} tests with [scanner] repeats = {scenario.scanner.repeats} give "
-                f"{cell.n_tests * scenario.scanner.repeats} repeat-scan samples; method 'gls_floor' needs at "
-                f"least {_min_floor_samples()} for its 6 x 6 noise-floor covariance: valid: n_tests >= {least} "
-                "with it, more repeats, or method 'fgls'",
+                f"{cell.n_tests} tests with [scanner] repeats = {repeats} give {cell.n_tests * repeats} "
+                f"repeat-scan samples; method 'gls_floor' needs at least {need} for its 6 x 6 noise-floor "
+                f"covariance: valid: n_tests >= {-(-need // repeats)} with it, more repeats, or method 'fgls'",
             )
         if cell.pose_set == "kappa_regions" and cell.n_tests > options.pool:
             raise f.error(

@@ -168,13 +168,18 @@ _JSON_NAMES = {str: "a string", float: "a number", dict: "a table", list: "a lis
 
 def _json_value(value) -> str:
     """``value`` as JSON would show it, with its JSON type (for an error message)."""
-    kind = next((name for t, name in _JSON_NAMES.items() if isinstance(value, t)), "a value")
-    if value is None or isinstance(value, bool):
-        kind = "null" if value is None else "a boolean"
-    elif isinstance(value, int):
-        kind = "a number"
+    if value is None:
+        return "null"
+    if isinstance(value, bool):  # before the numbers: a bool is an int in Python, not in JSON
+        kind = "a boolean"
+    else:
+        kind = (
+            "a number"
+            if _is_number(value)
+            else next((name for t, name in _JSON_NAMES.items() if isinstance(value, t)), "a value")
+        )
     text = json.dumps(value)
-    return f"{kind} {text[:40]}{'...' if len(text) > 40 else ''}" if value is not None else kind
+    return f"{kind} {text[:40]}{'...' if len(text) > 40 else ''}"
 
 
 def _typed(data: dict, path: Path, fields: dict) -> dict:

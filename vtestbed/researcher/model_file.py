@@ -135,6 +135,12 @@ def identify_with_model(root, model_path) -> dict:
 COLLINEAR_CONDITION = 1e6
 
 
+def _condition(fit) -> float:
+    """The condition number of ``fit``'s whitened design, its columns scaled to unit norm."""
+    s = scaled_svd(fit.design)[1]
+    return float(s[0] / s[-1])
+
+
 def _fit_determined(ctx, white, terms, base, model_path, root):
     """The fit of ``base`` plus ``terms``, each of which must add as many directions as it has
     parameters, or least squares would split the shared ones by minimum norm and report a small
@@ -143,11 +149,10 @@ def _fit_determined(ctx, white, terms, base, model_path, root):
     earlier one (link 2 contains ``joint_coupling(2,3)``), the search's backward step drops the
     earlier one (df 0). The terms are added one at a time; the last fit is the model's."""
     fit = base
-    s = scaled_svd(base.design)[1]
-    if s[0] > COLLINEAR_CONDITION * s[-1]:  # the tests alone: no term to blame
+    if (cond := _condition(base)) > COLLINEAR_CONDITION:  # the tests alone: no term to blame
         raise DatasetError(
             f"{root}: the stiffnesses alone are nearly collinear on its tests (condition number of the scaled "
-            f"columns {s[0] / s[-1]:.2g}, valid: below {COLLINEAR_CONDITION:g}): the tests do not determine "
+            f"columns {cond:.2g}, valid: below {COLLINEAR_CONDITION:g}): the tests do not determine "
             "them, let alone the model file's terms; add tests at other poses (vtestbed poses design)"
         )
     for k, term in enumerate(terms):
@@ -160,12 +165,11 @@ def _fit_determined(ctx, white, terms, base, model_path, root):
                 f"with the stiffnesses and {earlier} on these tests, so its parameters are not determined; "
                 "leave it out (or the term it duplicates)"
             )
-        s = scaled_svd(grown.design)[1]
-        if s[0] > COLLINEAR_CONDITION * s[-1]:
+        if (cond := _condition(grown)) > COLLINEAR_CONDITION:
             earlier = ", ".join(t.label for t in terms[:k]) or "no term"
             raise DatasetError(
                 f"{model_path}: terms: {term.label!r} is nearly collinear with the stiffnesses and {earlier} "
-                f"on these tests (condition number of the scaled columns {s[0] / s[-1]:.2g}, valid: below "
+                f"on these tests (condition number of the scaled columns {cond:.2g}, valid: below "
                 f"{COLLINEAR_CONDITION:g}), so its parameters are not determined (they would come out "
                 "arbitrarily large, with stds to match); leave it out (or the term it duplicates), or add "
                 "tests that separate them"
