@@ -59,6 +59,50 @@ def test_fgls_standard_deviation_is_honest_and_ols_is_not(robot, lab):
     assert np.any((ols < 0.75) | (ols > 1.33))
 
 
+@pytest.mark.parametrize(
+    ("n_tests", "rotation_per_translation"),
+    [(4, 10.0), (6, 10.0), (7, 0.1), (3, 1.0)],  # rad / m; at 3 tests one level: equal in SI
+)
+def test_fgls_standard_deviation_is_honest_with_few_tests(robot, lab, n_tests, rotation_per_translation):
+    """Below 8 tests the six variances cannot be estimated (a component's residuals can be
+    fitted exactly): the shared noise levels and the Student factor keep the z-scores' std
+    within [0.8, 1.25], the range docs/uncertainty.md calls honest. The reference is the
+    standard normal's 1; one variance per component gave 1e7 at 3 tests and 2-76 at 4-5.
+    Two levels (4-7 tests) hold whatever the rotation noise is against the translation's; the
+    one level of 3 tests holds where it is right, as its note says."""
+    rng = np.random.default_rng(60 + n_tests)
+    sigma = 2e-6 * np.concatenate([[1.0, 1.0, 1.1], np.array([1.4, 1.1, 1.0]) * rotation_per_translation])
+    z = {"fgls": [], "fgls_pooled": []}
+    for _ in range(800):
+        jac, wrench = _tests(robot, lab, rng, n_tests)  # a new design every trial
+        d = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(n_tests, 6)
+        d = d + rng.normal(size=d.shape) * sigma
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for method in z:
+                res = identify(jac, wrench, d, method=method)
+                z[method].append((res.stiffness - K_TRUE) / res.stiffness_std)
+    z_std = np.std(z["fgls"], axis=0)
+    print(f"\n{n_tests} tests: z-score std per joint {np.round(z_std, 2)}")
+    if n_tests == 3:
+        with pytest.warns(UserWarning, match="3 tests are too few to estimate the translation"):
+            identify(jac, wrench, d)
+    assert np.all((z_std > 0.8) & (z_std < 1.25))
+    # fgls_pooled's 6 x 6 noise needs 8 tests: below, its std is fgls's (it raised LinAlgError)
+    np.testing.assert_array_equal(z["fgls_pooled"], z["fgls"])
+
+
+def test_fgls_pooled_says_it_is_fgls_below_eight_tests(robot, lab):
+    rng = np.random.default_rng(61)
+    jac, wrench = _tests(robot, lab, rng, 5)
+    d = (stack(jac, wrench) @ (1.0 / K_TRUE)).reshape(5, 6) + rng.normal(size=(5, 6)) * SIGMA
+    with pytest.warns(
+        UserWarning, match="fgls_pooled needs at least 8 tests .* with 5 its estimate and std are fgls's"
+    ):
+        pooled = identify(jac, wrench, d, method="fgls_pooled")
+    assert pooled.stiffness_std == pytest.approx(identify(jac, wrench, d).stiffness_std, rel=1e-12)
+
+
 def test_wls_with_the_true_covariance_matches_its_prediction(robot, lab):
     rng = np.random.default_rng(6)
     jac, wrench = _tests(robot, lab, rng, 12)
@@ -132,9 +176,27 @@ def test_tests_that_barely_load_a_joint_are_flagged_ill_conditioned(robot, lab, 
     assert res.condition_number > 1e3
 
 
-def _dense_fgls(a, d, iterations=5):
+def _shared_variances(res, n):
+    """Residual variances (6,) of the (T, 6) residuals: one per component from 8 tests on;
+    below, one for x, y, z and one for rx, ry, rz while each keeps 9 degrees of freedom
+    (3 T - n / 2), else one for all (docs/uncertainty.md, "Few tests"). Returns the variances
+    and the degrees of freedom of each."""
+    n_tests = res.shape[0]
+    ss = np.sum(res**2, axis=0)
+    if n_tests >= 8:
+        return ss / (n_tests - n / 6.0), n_tests - n / 6.0
+    if 3 * n_tests - n / 2.0 >= 9:
+        nu = 3 * n_tests - n / 2.0
+        return np.repeat([ss[:3].sum() / nu, ss[3:].sum() / nu], 3), nu
+    nu = 6 * n_tests - n
+    return np.full(6, ss.sum() / nu), nu
+
+
+def _dense_fgls(a, d, iterations=5, per_component=False):
     """FGLS with an explicit dense (6 T, 6 T) whitening matrix, solved by LAPACK's lstsq: the
-    textbook form the estimator must reproduce. Returns c, (A^T W A)^-1 and the whitening."""
+    textbook form the estimator must reproduce. Returns c, (A^T W A)^-1 and the whitening.
+    ``per_component``: one variance per component whatever the test count (the jackknife's
+    refits of a fit that has them)."""
     n_tests, n = d.size // 6, a.shape[1]
     comp_std = np.ones(6)
     for it in range(iterations):
@@ -142,32 +204,37 @@ def _dense_fgls(a, d, iterations=5):
         c = np.linalg.lstsq(whiten @ a, whiten @ d, rcond=None)[0]
         if it < iterations - 1:  # noisy data: the exact-fit fallback and variance floor never act
             res = (d - a @ c).reshape(n_tests, 6)
-            comp_std = np.sqrt(np.sum(res**2, axis=0) / (n_tests - n / 6.0))
+            if per_component:
+                comp_std = np.sqrt(np.sum(res**2, axis=0) / (n_tests - n / 6.0))
+            else:
+                comp_std = np.sqrt(_shared_variances(res, n)[0])
     aw = whiten @ a
     return c, np.linalg.inv(aw.T @ aw), whiten
 
 
 def _dense_reference(a, d, iterations=5):
-    """compliance, covariance and chi2 of FGLS the slow way: analytic covariance scaled by
-    chi2 below 8 tests, else the delete-one-test jackknife of full dense refits."""
+    """compliance, covariance and chi2 of FGLS the slow way: below 8 tests the analytic
+    covariance scaled by chi2 and by the Student factor nu / (nu - 2) of the shared variances'
+    degrees of freedom, else the delete-one-test jackknife of full dense refits."""
     n_tests, n = d.size // 6, a.shape[1]
     c, inv_normal, whiten = _dense_fgls(a, d, iterations)
     white = whiten @ (d - a @ c)
     chi2 = white @ white / (6 * n_tests - n)
     if n_tests < 8:
-        return c, inv_normal * chi2, chi2
+        nu = _shared_variances((d - a @ c).reshape(n_tests, 6), n)[1]
+        return c, inv_normal * chi2 * nu / (nu - 2.0), chi2
     # Each refit fits the full fit's residuals e = d - A c: the model is linear, so that gives
     # c_t - c directly, with round-off relative to that small step rather than to c.
     e = d - a @ c
     steps = []
     for t in range(n_tests):
         keep = np.r_[0 : 6 * t, 6 * t + 6 : 6 * n_tests]
-        steps.append(_dense_fgls(a[keep], e[keep], iterations)[0])
+        steps.append(_dense_fgls(a[keep], e[keep], iterations, per_component=True)[0])
     dev = np.array(steps) - np.mean(steps, axis=0)
     return c, (n_tests - 1) / n_tests * dev.T @ dev, chi2
 
 
-@pytest.mark.parametrize("n_tests", [6, 9, 14])
+@pytest.mark.parametrize("n_tests", [2, 3, 4, 6, 9, 14])
 def test_fgls_matches_a_dense_matrix_reference(robot, lab, n_tests):
     rng = np.random.default_rng(40 + n_tests)
     jac, wrench = _tests(robot, lab, rng, n_tests)

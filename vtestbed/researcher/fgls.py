@@ -6,6 +6,14 @@ rx, ry, rz [rad]), re-estimated from the residuals of the previous fit; the cova
 compliances [rad/(N*m)]^2 is a delete-one-test jackknife. Every cost is linear in the tests T:
 the weights are a row scale, never a dense (6 T, 6 T) matrix, and the jackknife's T refits are
 downdates of per-component normal equations.
+
+With few tests the six variances cannot be estimated: a component's T residuals can be fitted
+exactly once T <= n, its variance collapses to zero and its weight runs away (z-scores of 1e7
+at 3 tests, 2-76 at 4-5). Below :data:`PER_COMPONENT_MIN_TESTS` the components therefore share
+noise levels (:func:`noise_levels`): one for the translations [m] and one for the rotations
+[rad] while each level keeps :data:`LEVEL_MIN_DOF` residual degrees of freedom, else one for
+all; and the analytic covariance is widened by the Student factor ``nu / (nu - 2)`` of the
+levels' degrees of freedom (:func:`small_sample_factor`). docs/uncertainty.md, "Few tests".
 """
 
 from __future__ import annotations
@@ -22,21 +30,64 @@ def solve_weighted(aw: np.ndarray, dw: np.ndarray):
     return c, cov
 
 
-def next_std(ss: np.ndarray, n_tests: int, n: int):
-    """FGLS update: per-component noise std (..., 6) from residual sums of squares (..., 6), and
-    whether the fit was exact (no information on the noise: fall back to unit weights)."""
-    dof_share = max(n_tests - n / 6.0, 1.0)  # n parameters spread over 6 components
-    std = np.sqrt(ss / dof_share)
+PER_COMPONENT_MIN_TESTS = 8  # one variance per component from this many tests on (jackknife too)
+LEVEL_MIN_DOF = 9  # residual degrees of freedom each shared noise level needs below that
+PER_COMPONENT = np.arange(6)  # the noise level of each component x, y, z, rx, ry, rz
+TRANSLATION_ROTATION = np.array([0, 0, 0, 1, 1, 1])
+ONE_LEVEL = np.zeros(6, dtype=int)
+
+
+def noise_levels(n_tests: int, n: int) -> np.ndarray:
+    """Which noise level each displacement component shares (6,) for a fit of T tests, n joints.
+
+    One per component from :data:`PER_COMPONENT_MIN_TESTS` tests on; below, translation and
+    rotation while each of the two keeps :data:`LEVEL_MIN_DOF` residual degrees of freedom
+    (``3 T - n / 2``: 4 tests for 6 joints), else one level for all (module docstring).
+    """
+    if n_tests >= PER_COMPONENT_MIN_TESTS:
+        return PER_COMPONENT
+    if level_dof(TRANSLATION_ROTATION, n_tests, n) >= LEVEL_MIN_DOF:
+        return TRANSLATION_ROTATION
+    return ONE_LEVEL
+
+
+def level_dof(levels: np.ndarray, n_tests: int, n: int) -> float:
+    """Residual degrees of freedom of the smallest noise level: its ``m`` components' ``m T``
+    equations less their share ``m n / 6`` of the n parameters."""
+    members = np.bincount(levels)
+    return float(np.min(members * n_tests - members * n / 6.0))
+
+
+def small_sample_factor(levels: np.ndarray, n_tests: int, n: int) -> float:
+    """Variance factor ``nu / (nu - 2)`` of a Student t with the levels' ``nu`` degrees of
+    freedom (:func:`level_dof`): a coefficient scaled by a variance estimated from ``nu``
+    residuals is t-distributed, whose variance is that much above the normal's. ``inf`` when
+    ``nu <= 2`` (no finite variance)."""
+    nu = level_dof(levels, n_tests, n)
+    return nu / (nu - 2.0) if nu > 2.0 else float("inf")
+
+
+def next_std(ss: np.ndarray, n_tests: int, n: int, levels: np.ndarray = PER_COMPONENT):
+    """FGLS update: noise std per component (..., 6) from residual sums of squares (..., 6), the
+    components of a level sharing one, and whether the fit was exact (no information on the
+    noise: fall back to unit weights)."""
+    members = np.bincount(levels)
+    pooled = ss @ np.eye(members.size)[levels]  # (..., levels); exact sums for PER_COMPONENT
+    dof_share = np.maximum(members * n_tests - members * n / 6.0, 1.0)  # n parameters over 6
+    std = np.sqrt(pooled / dof_share)[..., levels]
     exact = (6 * n_tests <= n) | ~np.any(std > 0, axis=-1)
     return np.maximum(std, 1e-9 * std.max(axis=-1, keepdims=True)), exact
 
 
-def fgls(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: int):
-    """Least squares weighted by per-component noise variances re-estimated from the residuals.
+def fgls(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: int, levels=None):
+    """Least squares weighted by noise variances re-estimated from the residuals: one per
+    component, or shared by the components of a level with few tests (``levels`` (6,), default
+    :func:`noise_levels`).
 
     Returns the compliances, the unscaled covariance (A^T W A)^-1 and the whitening as a row
     scale (6 T,). ``iterations = 1`` is ordinary least squares.
     """
+    levels = noise_levels(n_tests, n) if levels is None else np.asarray(levels)
     comp_std = np.ones(6)
     for it in range(iterations):
         scale = np.tile(1.0 / comp_std, n_tests)
@@ -44,7 +95,7 @@ def fgls(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: in
         if it == iterations - 1:
             break
         res = (d_flat - a @ c).reshape(n_tests, 6)
-        comp_std, exact = next_std(np.sum(res**2, axis=0), n_tests, n)
+        comp_std, exact = next_std(np.sum(res**2, axis=0), n_tests, n, levels)
         if exact:
             comp_std = np.ones(6)  # an exact fit carries no information on the noise
             scale = np.tile(1.0 / comp_std, n_tests)
@@ -53,7 +104,7 @@ def fgls(a: np.ndarray, d_flat: np.ndarray, n_tests: int, n: int, iterations: in
     return c, cov_c, scale
 
 
-JACKKNIFE_MIN_TESTS = 8  # below this the analytic FGLS covariance (spread/std about 1.3 at 6 tests)
+JACKKNIFE_MIN_TESTS = PER_COMPONENT_MIN_TESTS  # below, the analytic covariance, widened (module docstring)
 
 
 def jackknife_cov(a: np.ndarray, d_flat: np.ndarray, c_full: np.ndarray, iterations: int) -> np.ndarray:

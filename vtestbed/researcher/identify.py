@@ -16,16 +16,20 @@ Estimators (``fgls_pooled`` and ``fgls6`` in :mod:`.gls_full`, docs/uncertainty.
     (x, y, z, rx, ry, rz) estimated from the residuals of the previous fit, iterated. Needs no
     noise model, so it runs unchanged on lab data. Its covariance is a delete-one-test
     jackknife from 8 tests on: honest when the noise differs between translation and rotation,
-    is correlated between them, and the weights themselves are estimates. With fewer tests,
-    dropping one changes the design too much and the jackknife overstates the std, so the
-    analytic covariance (somewhat optimistic, spread/std about 1.3 at 6 tests) is used.
+    is correlated between them, and the weights themselves are estimates. With fewer tests six
+    variances cannot be estimated (a component's residuals can be fitted exactly) and dropping a
+    test changes the design too much for the jackknife: the tests share two noise levels
+    (translation, rotation; one from 3 tests down) and the analytic covariance is widened by the
+    Student factor of their degrees of freedom (:mod:`.fgls`; docs/uncertainty.md, "Few tests").
 ``fgls_pooled``
     ``fgls``'s compliances (bit for bit) with a parametric-bootstrap covariance under one full
     6 x 6 displacement noise shared by the tests (estimated from all residuals): unbiased where
     the jackknife overstates (designed sets), and 2-3 times steadier from one data set to the next.
+    Below 8 tests the 6 x 6 noise cannot be estimated: ``fgls``'s covariance, with a note.
 ``fgls6``
     GLS with that full 6 x 6 noise, iterated; analytic covariance, optimistic (21 numbers from
-    the residuals). Less efficient than ``fgls`` at 12-20 tests; for comparison only.
+    the residuals). Less efficient than ``fgls`` at 12-20 tests; for comparison only. Below 8
+    tests it is ``fgls``, with a note.
 ``gls_floor``
     GLS with the full 6 x 6 displacement-noise covariance of the repeat-scan noise floor
     (:mod:`.noise_floor`, passed as ``displacement_cov``): the weights come from scans of a static
@@ -50,7 +54,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import OutOfRangeError, SingularPoseError, SlackWireError, UnknownNameError
-from .fgls import JACKKNIFE_MIN_TESTS, fgls, jackknife_cov, solve_weighted
+from .fgls import (
+    JACKKNIFE_MIN_TESTS,
+    ONE_LEVEL,
+    fgls,
+    jackknife_cov,
+    noise_levels,
+    small_sample_factor,
+    solve_weighted,
+)
 from .gls_full import POOLED_METHODS, fgls_full, fgls_pooled_cov
 
 METHODS = ("ols", "wls", "fgls", *POOLED_METHODS, "gls_floor")
@@ -261,10 +273,17 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
     """One identification on checked, stacked inputs: A (6 T, n), d (T, 6)."""
     n_tests, n = d.shape[0], a.shape[1]
     d_flat = d.reshape(-1)
+    notes = []
+    few = n_tests < JACKKNIFE_MIN_TESTS and method in ("fgls", *POOLED_METHODS)
+    if few and method != "fgls":
+        notes.append(
+            f"{method} needs at least {JACKKNIFE_MIN_TESTS} tests to estimate a 6 x 6 noise; "
+            f"with {n_tests} its estimate and std are fgls's"
+        )
     if method in KNOWN_COV_METHODS:
         whiten = wls_whiten
         c, cov_c = solve_weighted(_apply(whiten, a), _apply(whiten, d_flat))
-    elif method == "fgls6":
+    elif method == "fgls6" and not few:
         c, cov_c, whiten, _ = fgls_full(a, d_flat, iterations)
     else:
         c, cov_c, whiten = fgls(a, d_flat, n_tests, n, 1 if method == "ols" else iterations)
@@ -282,14 +301,28 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
     else:
         white = _apply(whiten, residuals)
         chi2 = float(white @ white / dof)
-        if method == "fgls" and n_tests >= JACKKNIFE_MIN_TESTS:
+        if method == "fgls" and not few:
             cov_c = jackknife_cov(a, d_flat, c, iterations)
-        elif method == "fgls":  # the variances were estimated: carry their scale (wls keeps Sigma)
-            cov_c = cov_c * chi2
+        elif few and 6 * n_tests > n:  # variances from few residuals: their scale, t-widened
+            levels = noise_levels(n_tests, n)
+            factor = small_sample_factor(levels, n_tests, n)
+            if np.isfinite(factor):
+                cov_c = cov_c * chi2 * factor
+                if np.array_equal(levels, ONE_LEVEL):
+                    notes.append(
+                        f"{n_tests} tests are too few to estimate the translation [m] and rotation "
+                        "[rad] noise apart: one noise level is assumed for both, and the std is as "
+                        "good as that assumption; add tests, or weight with repeat scans (gls_floor)"
+                    )
+            else:
+                notes.append(
+                    f"{6 * n_tests} equations for {n} unknowns leave too few residuals to estimate "
+                    "the noise: no uncertainty (std = nan); add tests"
+                )
+                cov_c = np.full_like(cov_c, np.nan)
         elif method == "fgls_pooled":  # fgls's estimate, its covariance under a shared 6 x 6 noise
             cov_c = fgls_pooled_cov(a, d_flat, c, whiten, iterations)
     component_std = np.sqrt(np.mean(res6**2, axis=0))
-    notes = []
     if cond > ILL_CONDITIONED:
         notes.append(
             f"ill-conditioned stacked problem: condition number {cond:.3g} > {ILL_CONDITIONED:g}; "
