@@ -322,6 +322,29 @@ def test_a_changed_scenario_file_is_not_shown_as_the_runs(run_folder, scenarios_
     assert "scenario-facts" in t.ids and "method" in section  # what result.json and the dataset record
 
 
+def test_a_malformed_truth_file_is_refused_by_name_not_a_traceback(run_folder, scenarios_dir, tmp_path):
+    """The scenario section reads truth.json's effects when the scenario file changed; an
+    ``effects`` that is not a list of named effects raised TypeError there (2026-11-29)."""
+    import shutil
+
+    from report_fixtures import small_paper
+
+    from vtestbed.errors import DatasetError
+
+    data = small_paper() | {"name": "report_run"}
+    data["load"]["tension_N"] = 350.0  # the changed-file branch, which shows the recorded effects
+    write_scenario(scenarios_dir, data)
+    copy = tmp_path / "run"
+    shutil.copytree(run_folder, copy)
+    truth_path = copy / "dataset" / "truth.json"
+    truth = json.loads(truth_path.read_text())
+    truth_path.write_text(json.dumps(truth | {"effects": 5}))
+    with pytest.raises(
+        DatasetError, match=r"truth.json: effects must be a list of the hidden effects.*got 5"
+    ):
+        write_report(copy, tmp_path / "page.html")
+
+
 def test_versions_are_the_recorded_ones_or_labelled_as_installed_now(run_folder):
     from vtestbed.reports import sections_run
 

@@ -14,7 +14,7 @@ from ..errors import VtestbedError
 from ..researcher.discrepancy import COMPONENTS
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
-from .loader import ReportError, ResultFolder
+from .loader import ResultFolder
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -41,13 +41,12 @@ def _tests(folder: ResultFolder) -> list:
 
 
 def _truth(folder: ResultFolder) -> dict | None:
-    """The dataset's truth.json (what the world recorded when it simulated), or None if absent."""
-    from ..dataset import TRUTH_FILE
-    from ..files import read_json
+    """The dataset's truth.json (what the world recorded when it simulated), or None if absent;
+    checked as every reader checks it (:func:`vtestbed.comparison.read_truth`)."""
+    from ..comparison import read_truth
 
-    path = (folder.dataset or folder.root / "dataset") / TRUTH_FILE
     if "truth" not in folder.extra:
-        folder.extra["truth"] = read_json(path, "truth file", ReportError) if path.is_file() else None
+        folder.extra["truth"] = read_truth(folder.dataset or folder.root / "dataset")
     return folder.extra["truth"]
 
 
