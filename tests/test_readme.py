@@ -53,3 +53,19 @@ def test_python_example_runs(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     rows = [line for line in out.stdout.splitlines() if line.startswith("joint")]
     assert len(rows) >= 12  # six joints printed, then the six rows of Table 5
+
+
+def test_the_demo_prints_the_table_the_readme_shows(tmp_path, capsys):
+    """The README's Table 5 block is the demo's output (a drift test: the convergence columns
+    moved on 2026-11-29 with the few-test weights, and no test said so)."""
+    from vtestbed.cli.main import main
+
+    assert (
+        main(["run", str(ROOT / "scenarios" / "kr60_paper.toml"), "--out", str(tmp_path / "run"), "--quiet"])
+        == 0
+    )
+    printed = [
+        line for line in capsys.readouterr().out.splitlines() if line.startswith(("joint", "validation"))
+    ]
+    block = re.search(r"```\n(joint     k_true.+?)\n```", (ROOT / "README.md").read_text(), re.S).group(1)
+    assert printed == block.splitlines()

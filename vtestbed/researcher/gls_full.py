@@ -163,8 +163,9 @@ def fgls_batch(a3: np.ndarray, d: np.ndarray, iterations: int = 5) -> np.ndarray
     """Per-component FGLS (``identify``'s ``fgls`` iteration) of B data sets at once.
 
     ``a3`` (T, 6, n), ``d`` (B, T, 6) [m | rad]; returns the compliances (B, n). The same
-    iteration as :func:`vtestbed.researcher.fgls.fgls` (unit weights first, one variance per
-    component from the residual sums over ``T - n / 6``, floored at 1e-9 of the largest) on the
+    iteration as :func:`vtestbed.researcher.fgls.fgls` with 8 tests or more (unit weights first,
+    one variance per component from the residual sums over ``T - n / 6``, floored at 1e-9 of the
+    largest; ``fgls_pooled`` bootstraps only such fits, fewer tests share noise levels) on the
     normal equations, equilibrated to a unit diagonal. The residual sums are expanded
     (``sum d^2 - 2 c.g + c^T G c`` per component, O(B n^2)): pass noise (the fit is equivariant,
     a refit of ``A c + e`` is ``c`` plus the refit of ``e``), whose sums do not cancel.
