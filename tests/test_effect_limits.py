@@ -94,6 +94,34 @@ def test_an_effect_that_makes_the_arm_sag_is_refused():
         rig.solve()
 
 
+def test_the_sag_check_looks_at_effects_on_the_statics_only():
+    """A robot soft on purpose (the joint springs 100 times softer: the clean arm then sags by tens
+    of mrad, as the solver's own tests use it) with an effect on the sensors alone is the clean
+    rig's statics and is not refused; an effect on the statics beside it is, and is the only one
+    the message names."""
+    import dataclasses
+
+    from vtestbed.world.effects import LinkCompliance, ScannerScale
+    from vtestbed.world.rig import MAX_DEFLECTION_RAD
+
+    truth = load_truth("kuka_kr60_3")
+    soft = dataclasses.replace(truth, stiffness=tuple(k / 100.0 for k in truth.stiffness))
+    sensors_only = Rig(truth=soft, effects=(ScannerScale(),))
+    sensors_only.command(POSE)
+    sensors_only.hook("hook_x", "ring_5")
+    clean = Rig(truth=soft)
+    clean.command(POSE)
+    clean.hook("hook_x", "ring_5")
+    sag = sensors_only.solve().deflection
+    assert np.max(np.abs(sag)) > MAX_DEFLECTION_RAD  # the soft arm's own sag, past the limit
+    np.testing.assert_array_equal(sag, clean.solve().deflection)  # the scale leaves the statics
+    both = Rig(truth=soft, effects=(ScannerScale(), LinkCompliance()))
+    both.command(POSE)
+    both.hook("hook_x", "ring_5")
+    with pytest.raises(OutOfRangeError, match=r"beyond 50 mrad: .*\(world.effects: link_compliance\)"):
+        both.solve()
+
+
 def test_an_effect_is_named_by_its_place_in_the_file_when_a_null_one_comes_first(tmp_path):
     """A zero-size effect is off (dropped from the world), not renumbered: the coupling after it is
     world.effects[1], as in the file."""

@@ -39,7 +39,8 @@ HOLD_OFFSET = 1e15  # m
 
 # A stiff arm deflects by milliradians (the KR60 about 1 mrad under gravity and 200 N): hidden effects
 # that deflect a joint by 50 mrad (2.9 deg) make a world that no longer describes one. (A rig without
-# effects is not checked: the solver's own tests scale the stiffness down 100 times.)
+# effects on its statics is not checked: the solver's own tests scale the stiffness down 100 times,
+# and an effect on the sensors alone leaves the clean rig's statics.)
 MAX_DEFLECTION_RAD = 0.05
 
 
@@ -274,8 +275,10 @@ class Rig:
             raise OutOfRangeError(softening)
         deflection = eq.qpos[self._joint_qpos] - self._q_cmd
         j = int(np.argmax(np.abs(deflection)))
-        if self.effects and abs(deflection[j]) > MAX_DEFLECTION_RAD:  # a clean rig may be soft on purpose
-            effects = ", ".join(e.name for e in self.effects)
+        # a clean rig may be soft on purpose, and an effect on the sensors alone leaves its statics
+        physical = [e.name for e in self.effects if e.changes_physics]
+        if physical and abs(deflection[j]) > MAX_DEFLECTION_RAD:
+            effects = ", ".join(physical)
             raise OutOfRangeError(
                 f"{self.robot.joint_names[j]} deflects {deflection[j] * 1e3:.4g} mrad "
                 f"({np.degrees(deflection[j]):.3g} deg) at equilibrium, beyond {MAX_DEFLECTION_RAD * 1e3:g} mrad: "

@@ -116,6 +116,16 @@ class WorldEffect:
         return type(self).joint_forces is not WorldEffect.joint_forces
 
     @property
+    def changes_physics(self) -> bool:
+        """True when the effect changes the truth world's statics (extra hinges, the scene, joint
+        forces), not only what the sensors report or how the loaded block creeps."""
+        return (
+            self.has_joint_forces
+            or type(self).hinges is not WorldEffect.hinges
+            or type(self).edit_spec is not WorldEffect.edit_spec
+        )
+
+    @property
     def moves_loaded_block(self) -> bool:
         return type(self).loaded_motion is not WorldEffect.loaded_motion
 
