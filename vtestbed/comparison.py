@@ -18,6 +18,7 @@ from .errors import DatasetError
 from .files import read_json
 from .researcher.identify import IdentificationResult
 from .researcher.report import PAPER_FIRST_N
+from .truth_file import check_recorded
 
 __all__ = ["PAPER_FIRST_N", "compare", "error_ranges", "read_truth", "table5", "true_stiffness"]
 
@@ -51,35 +52,8 @@ def read_truth(root: str | Path, dof: int | None = None) -> dict | None:
             else None
         )
     true_stiffness(truth, dof, path)
-    _check_recorded(truth, path)
+    check_recorded(truth, path)
     return truth
-
-
-def _check_recorded(truth: dict, path: Path) -> None:
-    """The other keys a reader uses (resume, the run report), each optional: ``tests`` a table of
-    tables by test id, ``scenario`` and ``scenario_fingerprint`` text, ``joint_names`` a list of
-    text, ``effects`` a list of tables with a text ``name``. A DatasetError names the key."""
-    tests = truth.get("tests", {})
-    if not isinstance(tests, dict):
-        raise DatasetError(f"{path}: tests must be a table of the simulated tests by id, got {tests!r}")
-    bad = next((tid for tid, record in tests.items() if not isinstance(record, dict)), None)
-    if bad is not None:
-        raise DatasetError(f"{path}: tests.{bad} must be a table of the test's truth, got {tests[bad]!r}")
-    for key in ("scenario", "scenario_fingerprint"):
-        if key in truth and not isinstance(truth[key], str):
-            raise DatasetError(f"{path}: {key} must be text, got {truth[key]!r}")
-    names = truth.get("joint_names", [])
-    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
-        raise DatasetError(f"{path}: joint_names must be a list of joint names (text), got {names!r}")
-    effects = truth.get("effects", [])
-    named = isinstance(effects, list) and all(
-        isinstance(e, dict) and isinstance(e.get("name"), str) for e in effects
-    )
-    if not named:
-        raise DatasetError(
-            f"{path}: effects must be a list of the hidden effects, each a table with a text 'name', "
-            f"got {effects!r}"
-        )
 
 
 def true_stiffness(truth: dict, dof: int | None, source: str | Path = TRUTH_FILE) -> np.ndarray:

@@ -14,7 +14,7 @@ from ..errors import VtestbedError
 from ..researcher.discrepancy import COMPONENTS
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
-from .loader import ResultFolder
+from .loader import ReportError, ResultFolder
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -42,11 +42,18 @@ def _tests(folder: ResultFolder) -> list:
 
 def _truth(folder: ResultFolder) -> dict | None:
     """The dataset's truth.json (what the world recorded when it simulated), or None if absent;
-    checked as every reader checks it (:func:`vtestbed.comparison.read_truth`)."""
-    from ..comparison import read_truth
+    the keys this report reads (fingerprint, effects) checked as on resume
+    (:func:`vtestbed.truth_file.check_recorded`). The true stiffness is not read here."""
+    from ..dataset import TRUTH_FILE
+    from ..files import read_json
+    from ..truth_file import check_recorded
 
+    path = (folder.dataset or folder.root / "dataset") / TRUTH_FILE
     if "truth" not in folder.extra:
-        folder.extra["truth"] = read_truth(folder.dataset or folder.root / "dataset")
+        truth = read_json(path, "truth file", ReportError) if path.is_file() else None
+        if truth is not None:
+            check_recorded(truth, path)
+        folder.extra["truth"] = truth
     return folder.extra["truth"]
 
 
