@@ -42,6 +42,7 @@ from .researcher import report
 from .run_record import Timings, versions
 from .scenario import Scenario, load_field, pose_field
 from .truth_file import TruthFile
+from .world.effects import check_effects
 from .world.physics import draw_readings, run_test_physics, test_rng
 from .world.physics_pool import physics_in_order
 from .world.repeats import draw_repeat_scans, loaded_repeat_geometries, loaded_repeat_rng, repeat_rng
@@ -80,15 +81,11 @@ def check_world_effects(scenario: Scenario) -> None:
     scenario file's name (the scenario reader does not read the truth)."""
     if all(e.is_null for e in scenario.effects):
         return
-    truth = load_truth(scenario.robot_name)
-    for i, effect in enumerate(scenario.effects):  # numbered as in the file; a null effect is off
-        if effect.is_null:
-            continue
-        try:
-            effect.check_world(scenario.robot, truth, f"world.effects[{i}] ({effect.name})")
-        except VtestbedError as exc:
-            where = f"{scenario.source}: " if scenario.source else ""
-            raise ScenarioError(f"{where}{exc}") from None
+    try:
+        check_effects(scenario.effects, scenario.robot, load_truth(scenario.robot_name))
+    except VtestbedError as exc:
+        where = f"{scenario.source}: " if scenario.source else ""
+        raise ScenarioError(f"{where}{exc}") from None
 
 
 def _scenario_physics(scenario: Scenario, rig: Rig, jobs: list):

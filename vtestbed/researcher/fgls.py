@@ -51,11 +51,16 @@ def noise_levels(n_tests: int, n: int) -> np.ndarray:
     return ONE_LEVEL
 
 
-def level_dof(levels: np.ndarray, n_tests: int, n: int) -> float:
-    """Residual degrees of freedom of the smallest noise level: its ``m`` components' ``m T``
-    equations less their share ``m n / 6`` of the n parameters."""
+def _dof_per_level(levels: np.ndarray, n_tests: int, n: int) -> np.ndarray:
+    """Residual degrees of freedom of each noise level: its ``m`` components' ``m T`` equations
+    less their share ``m n / 6`` of the n parameters."""
     members = np.bincount(levels)
-    return float(np.min(members * n_tests - members * n / 6.0))
+    return members * n_tests - members * n / 6.0
+
+
+def level_dof(levels: np.ndarray, n_tests: int, n: int) -> float:
+    """Residual degrees of freedom of the smallest noise level (:func:`_dof_per_level`)."""
+    return float(np.min(_dof_per_level(levels, n_tests, n)))
 
 
 def small_sample_factor(levels: np.ndarray, n_tests: int, n: int) -> float:
@@ -71,9 +76,8 @@ def next_std(ss: np.ndarray, n_tests: int, n: int, levels: np.ndarray = PER_COMP
     """FGLS update: noise std per component (..., 6) from residual sums of squares (..., 6), the
     components of a level sharing one, and whether the fit was exact (no information on the
     noise: fall back to unit weights)."""
-    members = np.bincount(levels)
-    pooled = ss @ np.eye(members.size)[levels]  # (..., levels); exact sums for PER_COMPONENT
-    dof_share = np.maximum(members * n_tests - members * n / 6.0, 1.0)  # n parameters over 6
+    pooled = ss @ np.eye(levels.max() + 1)[levels]  # (..., levels); exact sums for PER_COMPONENT
+    dof_share = np.maximum(_dof_per_level(levels, n_tests, n), 1.0)  # n parameters over 6
     std = np.sqrt(pooled / dof_share)[..., levels]
     exact = (6 * n_tests <= n) | ~np.any(std > 0, axis=-1)
     return np.maximum(std, 1e-9 * std.max(axis=-1, keepdims=True)), exact

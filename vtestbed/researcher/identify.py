@@ -274,6 +274,7 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
     n_tests, n = d.shape[0], a.shape[1]
     d_flat = d.reshape(-1)
     notes = []
+    levels = noise_levels(n_tests, n)  # the fgls weights' noise levels, shared below 8 tests
     few = n_tests < JACKKNIFE_MIN_TESTS and method in ("fgls", *POOLED_METHODS)
     if few and method != "fgls":
         notes.append(
@@ -286,7 +287,7 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
     elif method == "fgls6" and not few:
         c, cov_c, whiten, _ = fgls_full(a, d_flat, iterations)
     else:
-        c, cov_c, whiten = fgls(a, d_flat, n_tests, n, 1 if method == "ols" else iterations)
+        c, cov_c, whiten = fgls(a, d_flat, n_tests, n, 1 if method == "ols" else iterations, levels)
     # Condition number of the joints' contributions to the (weighted) displacements: a joint
     # whose torque is small in every test contributes little and makes this large.
     sv = np.linalg.svd(_apply(whiten, a) * np.abs(c)[None, :], compute_uv=False)
@@ -304,7 +305,6 @@ def _fit(a, d, method, names, wls_whiten, iterations) -> IdentificationResult:
         if method == "fgls" and not few:
             cov_c = jackknife_cov(a, d_flat, c, iterations)
         elif few and 6 * n_tests > n:  # variances from few residuals: their scale, t-widened
-            levels = noise_levels(n_tests, n)
             factor = small_sample_factor(levels, n_tests, n)
             if np.isfinite(factor):
                 cov_c = cov_c * chi2 * factor

@@ -26,6 +26,7 @@ from ..errors import ConvergenceError, OutOfRangeError, SensorOverloadError, che
 from ..lab import PAPER_LAB, LabSetup
 from ..robots import RobotDescription, load_robot
 from . import mjcf, statics
+from .effects import check_effects
 from .rig_state import RigState
 from .truth import RobotTruth, load_truth
 
@@ -77,8 +78,7 @@ class Rig:
         self.effects = tuple(e for e in effects if not e.is_null)
         # each kept effect's place in the scenario's list (null ones are dropped, not renumbered)
         self._effect_fields = tuple(f"world.effects[{i}]" for i, e in enumerate(effects) if not e.is_null)
-        for field, effect in zip(self._effect_fields, self.effects):
-            effect.check_world(self.robot, self.truth, f"{field} ({effect.name})")
+        check_effects(effects, self.robot, self.truth)
         self._joint_effects = tuple(e for e in self.effects if e.has_joint_forces)
         self.model = mjcf.build_scene_spec(self.robot, self.truth, self.lab, self.effects).compile()
         if not gravity:

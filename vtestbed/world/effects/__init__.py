@@ -10,7 +10,7 @@ chain apply them; ``truth.json`` records them; nothing in the dataset files reve
 from __future__ import annotations
 
 from ...schema import Fields
-from .base import ExtraHinge, Param, WorldEffect
+from .base import ExtraHinge, Param, WorldEffect, check_effects
 from .creep import LoadCreep
 from .joints import JointCoupling, NonlinearJoint
 from .measurement import FtBiasDrift, FtMisalignment, ScannerScale
@@ -48,6 +48,7 @@ __all__ = [
     "Param",
     "ScannerScale",
     "WorldEffect",
+    "check_effects",
     "parse_effect",
     "parse_effects",
 ]

@@ -143,3 +143,11 @@ class WorldEffect:
             value = getattr(self, f.name)
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
+
+
+def check_effects(effects, robot, truth) -> None:
+    """Each effect of a scenario's list against the robot and its truth (:meth:`WorldEffect.check_world`),
+    named by its place in the list (``world.effects[i]``); a null effect is off, not renumbered."""
+    for i, effect in enumerate(effects):
+        if not effect.is_null:
+            effect.check_world(robot, truth, f"world.effects[{i}] ({effect.name})")
