@@ -38,6 +38,7 @@ from bench_discrepancy import (  # benchmarks/ is on sys.path when run as a scri
 )
 
 from vtestbed.design.discriminate import SEPARATION_TARGET
+from vtestbed.design.rivals import rivals_from_report
 from vtestbed.discovery import discover
 from vtestbed.errors import VtestbedError
 from vtestbed.scenario import parse_scenario, read_scenario_file
@@ -100,9 +101,21 @@ def run_seed(
            "extra_tests": sum(len(k["proposal"]["tests"]) for k in r.get("rounds") or ()),
            "after_round1": (r.get("rounds") or [{}])[0].get("named", r["named_before"]),
            "wall_s": time.perf_counter() - t0}  # fmt: skip
+    if row["reason"] == "confusable":  # the rivals before the runner-up's stand-in had a place
+        row["rivals_without_reserve"] = rivals_without_reserve(folder / "round0" / "diagnose" / "report.json")
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
     return row
+
+
+def rivals_without_reserve(report_path: Path) -> list[str] | None:
+    """A confusable round's rivals without the place kept for the runner-up's stand-in (the rule
+    before 2026-11-29): the same report with its ``runner_overlap`` column left out."""
+    report = json.loads(report_path.read_text())
+    for rnd in report["rounds"]:
+        for test in rnd["tests"]:
+            test.pop("runner_overlap", None)
+    return (rivals_from_report(report) or {}).get("rivals")
 
 
 def main() -> None:

@@ -206,6 +206,32 @@ def test_marginal_rivals_take_the_leads_stand_ins():
     assert disc.rivals_from_report(_report([rnd]))["rivals"] == [disc.BASELINE, "a"]
 
 
+def test_confusable_rivals_keep_room_for_the_runner_ups_stand_in():
+    # four close models (a chosen, b the runner-up, c and d within the margin) and e, far behind
+    # but reproducing 96 % of b's pattern: e takes the third place, d drops out of the four
+    close = [_row("a", 1e-9, 100.0, True), _row("b", 1e-8, 103.0, True), _row("c", 1e-7, 105.0, True),
+             _row("d", 1e-6, 107.0, True), _row("e", 1e-4, 150.0, False, 6), _row("f", 0.5, 160.0, False)]  # fmt: skip
+    for row, share in zip(close[2:], (0.3, 0.1, 0.96, disc.STAND_IN_R2 - 1e-9), strict=True):
+        row["runner_overlap"] = share
+    close[0]["runner_overlap"] = 0.99  # the chosen term stands in best: it is a rival already
+    rnd = {"base": [], "chosen": "a", "runner_up": "b", "delta_bic": 3.0, "tests": close}
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "b", "e", "c"]
+    close[4]["runner_overlap"] = disc.STAND_IN_R2 - 1e-9  # no stand-in: the four close ones
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "b", "c", "d"]
+    close[2]["runner_overlap"] = 0.8  # the stand-in is close already: the same four
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "b", "c", "d"]
+    # the chosen term's shares (the overlap column) are not the runner-up's
+    close[2]["runner_overlap"], close[4]["overlap"] = 0.3, 0.96
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "b", "c", "d"]
+    close[4]["runner_overlap"] = 0.96  # a stand-in the stepwise search dropped is not a rival
+    assert disc.rivals_from_report(_report([rnd]) | {"dropped": {"e": "..."}})["rivals"] == [
+        "a",
+        "b",
+        "c",
+        "d",
+    ]
+
+
 def test_confirming_rivals_after_a_decisive_diagnosis():
     # a decisive name: the chosen term against the next candidates by BIC (df 0 rows skipped)
     decisive = [_row("a", 1e-12, 100.0, True), _row("b", 1e-3, 130.0, True), _row("c", 0.5, 120.0, False),

@@ -140,6 +140,27 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
     assert "fig-gap" in t.ids and "fig-effect" in t.ids and "scene-3d" in t.ids
 
 
+def test_a_confusable_round_shows_the_runner_ups_shares(diagnosis_folder, tmp_path):
+    """A confusable round's table adds the shares of the runner-up's pattern (runner_overlap)."""
+    import shutil
+
+    folder = shutil.copytree(diagnosis_folder, tmp_path / "diagnose")
+    report = json.loads((folder / "report.json").read_text())
+    rnd = report["rounds"][0]
+    labels = [t["label"] for t in rnd["tests"]]
+    rnd["runner_up"] = labels[1]
+    for k, test in enumerate(rnd["tests"]):
+        test["runner_overlap"] = None if k == 1 else (k * 0.137) % 1.0
+    (folder / "report.json").write_text(json.dumps(report))
+    head, *rows = parse(write_report(folder)).tables["candidates-round-1"]
+    assert head[-1] == f"share of {labels[1]}'s pattern" and len(head) == 9
+    by_label = {t["label"]: t["runner_overlap"] for t in rnd["tests"]}
+    for row in rows:
+        share = by_label[row[0]]
+        assert row[8] == "-" if share is None else float(row[8]) == pytest.approx(share, abs=0.005 + 1e-9)
+    assert [row[0] for row in rows if row[8] == "-"] == [labels[1]]
+
+
 def test_pages_are_self_contained_and_small(pages):
     for kind, page in pages.items():
         html = page.read_text(encoding="utf-8")

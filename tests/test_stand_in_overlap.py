@@ -86,3 +86,31 @@ def test_the_report_lists_the_candidates_that_could_stand_in():
     assert stand_ins(report) == {"a": [("b", 0.98), ("e", 0.75), ("d", STAND_IN_R2)]}
     rows[1]["overlap"] = STAND_IN_R2 - 1e-9
     assert [label for label, _ in stand_ins(report)["a"]] == ["e", "d"]
+
+
+def test_a_confusable_round_records_the_runner_ups_overlap(hidden_offset):
+    """A clone of the hidden block offset ties with it (a confusable round): the round carries the
+    shares of the runner-up's pattern too, each the squared cosine to the candidate's span."""
+    ctx, white, pool = hidden_offset
+    clone = replace(next(c for c in pool if c.label == "block_offset"), label="block_offset (clone)")
+    chosen, steps, _ = name_effects(ctx, white, [*pool, clone], max_terms=1)
+    first = steps[0]
+    assert (first.chosen, first.runner_up) == ("block_offset", "block_offset (clone)")
+    assert first.delta == pytest.approx(0.0, abs=1e-6)
+    rows = {r["label"]: r["runner_overlap"] for r in first.tests}
+    assert rows["block_offset (clone)"] is None and rows["block_offset"] == pytest.approx(1.0, abs=1e-9)
+    ms = ctx.measurements
+    keep = null_space(white(stack([m.jacobian for m in ms], [m.wrench for m in ms])).T)
+    fit = fit_model(ctx, white, [clone])
+    pattern = keep.T @ (
+        white(clone.columns(ctx, fit.compliance)) @ np.array(list(fit.theta[clone.label].values()))
+    )
+    for cand in pool:
+        if cand.label == "block_offset":
+            continue
+        span = keep.T @ white(cand.columns(ctx, fit.compliance))
+        expected = np.cos(subspace_angles(pattern[:, None], span)[0]) ** 2
+        assert rows[cand.label] == pytest.approx(expected, abs=1e-6), cand.label
+    # a decisive round (no clone) has no such column
+    _, steps, _ = name_effects(ctx, white, pool, max_terms=1)
+    assert all("runner_overlap" not in r for r in steps[0].tests)

@@ -61,13 +61,17 @@ def candidates(folder: ResultFolder) -> Section:
                  Num(t["bic"], ".2f"),
                  "yes" if t["significant"] else "no",
                  "-" if t.get("overlap") is None else Num(t["overlap"], ".2f")] for t in rnd["tests"]]  # fmt: skip
+        header = ["candidate", "likelihood ratio", "parameters", "p-value", "held-out error", "BIC", "significant",
+                  f"share of {rnd.get('overlap_of') or 'the chosen term'}'s pattern"]  # fmt: skip
+        if any("runner_overlap" in t for t in rnd["tests"]):  # a confusable round (since 2026-11-29)
+            header.append(f"share of {rnd['runner_up']}'s pattern")
+            for row, t in zip(rows, rnd["tests"], strict=True):
+                row.append("-" if t.get("runner_overlap") is None else Num(t["runner_overlap"], ".2f"))
         caption = (f"Round {i}: candidates added to {base} (chi^2 {rnd['base_chi2']:.1f}); chosen: {rnd['chosen'] or 'nothing'}"
                    f" (ranked by {rank_label(folder.data)})")  # fmt: skip
         if rnd.get("dropped"):  # the stepwise search's re-test after this round's addition
             caption += f"; dropped: {', '.join(d['label'] for d in rnd['dropped'])}"
-        blocks.append(Table(["candidate", "likelihood ratio", "parameters", "p-value", "held-out error", "BIC", "significant",
-                             f"share of {rnd.get('overlap_of') or 'the chosen term'}'s pattern"], rows,
-                            id=f"candidates-round-{i}", caption=caption))  # fmt: skip
+        blocks.append(Table(header, rows, id=f"candidates-round-{i}", caption=caption))
     return Section("candidates", "Candidate terms", blocks)
 
 

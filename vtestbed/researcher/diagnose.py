@@ -166,15 +166,18 @@ def stand_in_overlap(
 def round_stand_ins(rnd: dict, lead: str) -> list[tuple[str, float]]:
     """The candidates of a report's round ``rnd`` that reproduce at least :data:`STAND_IN_R2` of
     ``lead``'s fitted pattern, as (label, share) pairs, largest share first: the round's
-    ``overlap`` column (:func:`stand_in_overlap`). Empty when the round's shares are of another
-    candidate (``overlap_of``; reports before 2026-11-26 have none: their shares are of the
-    chosen term, and of nothing when nothing was chosen)."""
-    if rnd.get("overlap_of", rnd["chosen"]) != lead:
+    ``overlap`` column (:func:`stand_in_overlap`) when ``lead`` is whose shares it holds
+    (``overlap_of``; reports before 2026-11-26 have none: their shares are of the chosen term, and
+    of nothing when nothing was chosen), the ``runner_overlap`` column when ``lead`` is a
+    confusable round's runner-up (reports since 2026-11-29). Empty for any other candidate."""
+    if rnd.get("overlap_of", rnd["chosen"]) == lead:
+        column = "overlap"
+    elif lead is not None and rnd.get("runner_up") == lead:
+        column = "runner_overlap"
+    else:
         return []
     alike = [
-        (t["label"], t["overlap"])
-        for t in rnd["tests"]
-        if t["df"] > 0 and (t.get("overlap") or 0.0) >= STAND_IN_R2
+        (t["label"], t[column]) for t in rnd["tests"] if t["df"] > 0 and (t.get(column) or 0.0) >= STAND_IN_R2
     ]
     return sorted(alike, key=lambda pair: -pair[1])
 
@@ -197,7 +200,7 @@ class Step:
 
     base_terms: tuple[str, ...]
     base_chi2: float
-    tests: list  # dicts: label, lr, df, p_value, bic, press, significant
+    tests: list  # dicts: label, lr, df, p_value, bic, press, significant, overlap (, runner_overlap)
     chosen: str | None
     runner_up: str | None = None  # the best other significant candidate by the ranking criterion
     delta: float | None = None  # its score minus the chosen one's (< CONFUSABLE_MARGIN: confusable)
@@ -308,6 +311,15 @@ def name_effects(
             overlap = stand_in_overlap(ctx, white, fits[lead.label], lead, chosen, rest)
             for row in rows:  # the lead's own row: None
                 row["overlap"] = overlap.get(row["label"])
+        margin = _margin(runner, best, rank_by)
+        if margin is not None and margin < CONFUSABLE_MARGIN:
+            # a confusable round: the runner-up could be the effect, and so could what stands in
+            # for it (a block offset for a scanner scale), which a design must then also ask about
+            rival = next(c for c in remaining if c.label == runner["label"])
+            rest = [c for c in remaining if c is not rival]
+            overlap = stand_in_overlap(ctx, white, fits[rival.label], rival, chosen, rest)
+            for row in rows:  # the runner-up's own row: None
+                row["runner_overlap"] = overlap.get(row["label"])
         base_terms, base_chi2 = tuple(t.label for t in chosen), current.chi2
         dropped = []
         if best is not None:
@@ -317,7 +329,7 @@ def name_effects(
             )
         steps.append(
             Step(base_terms, base_chi2, rows, best[1].label if best else None, runner["label"] if runner else None,
-                 _margin(runner, best, rank_by), tuple(dropped), level, _margin(runner, best, "bic"),
+                 margin, tuple(dropped), level, _margin(runner, best, "bic"),
                  lead_row["label"] if lead_row is not None else None)
         )  # fmt: skip
         state = frozenset(t.label for t in chosen)
