@@ -2,8 +2,8 @@
 folder of each kind, made by the real commands' code, and Debian's Chromium for the browser tests.
 
 The folders are small versions of the README's examples: a run of 8 + 2 tests of the paper's
-scenario, a tiny campaign (3 trials x 4 cells) and a diagnosis of 8 + 2 tests with a hidden
-compliant link and 2 repeat scans per test.
+scenario, a tiny campaign (3 trials x 4 cells), a diagnosis of 8 + 2 tests with a hidden
+compliant link and 2 repeat scans per test, and ``vtestbed discover`` on the same scenario.
 """
 
 from __future__ import annotations
@@ -60,26 +60,47 @@ def diagnosis_folder(tmp_path_factory) -> Path:
     from vtestbed.scenario import parse_scenario
 
     root = tmp_path_factory.mktemp("report_diagnosis")
-    text = PAPER.read_text()
-    text = re.sub(r"\[scanner\]\n", "[scanner]\nrepeats = 2\n", text, count=1)
-    text += '\n[[world.effects]]\nname = "link_compliance"\n'
-    data = tomllib.loads(text)
-    cut = small_paper()
-    data["poses"], data["validation"], data["load"] = cut["poses"], cut["validation"], cut["load"]
     dataset = root / "dataset"
-    simulate(parse_scenario(data, "hidden.toml"), dataset)
+    simulate(parse_scenario(hidden_link_scenario(), "hidden.toml"), dataset)
     names = ("link_compliance", "joint_coupling")
     diagnose(dataset, names=names, out=dataset / "diagnose")
     return dataset / "diagnose"
 
 
+def hidden_link_scenario(repeats: int = 2) -> dict:
+    """8 + 2 of the paper's tests with link 2 compliant in the world and ``repeats`` repeat scans."""
+    text = PAPER.read_text()
+    text = re.sub(r"\[scanner\]\n", f"[scanner]\nrepeats = {repeats}\n", text, count=1)
+    text += '\n[[world.effects]]\nname = "link_compliance"\n'
+    data = tomllib.loads(text)
+    cut = small_paper()
+    data["poses"], data["validation"], data["load"] = cut["poses"], cut["validation"], cut["load"]
+    return data
+
+
 @pytest.fixture(scope="session")
-def pages(run_folder, campaign_folder, diagnosis_folder) -> dict:
+def discovery_folder(tmp_path_factory) -> Path:
+    """``vtestbed discover --always`` on the hidden-link scenario: one round of 2 tests; the
+    command writes every page (the discovery page and each stage's diagnosis page)."""
+    from vtestbed.cli.main import main
+    from vtestbed.scenario_writer import toml_text
+
+    root = tmp_path_factory.mktemp("report_discovery")
+    (root / "hidden.toml").write_text(toml_text(hidden_link_scenario() | {"name": "report_discovery"}))
+    argv = ["discover", str(root / "hidden.toml"), "--out", str(root / "out"), "--extra-tests", "2",
+            "--n-poses", "10", "--always", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    return root / "out"
+
+
+@pytest.fixture(scope="session")
+def pages(run_folder, campaign_folder, diagnosis_folder, discovery_folder) -> dict:
     """Each kind's report.html, written once for both report test modules."""
     from vtestbed.reports import write_report
 
     return {kind: write_report(folder) for kind, folder in
-            (("run", run_folder), ("campaign", campaign_folder), ("diagnosis", diagnosis_folder))}  # fmt: skip
+            (("run", run_folder), ("campaign", campaign_folder), ("diagnosis", diagnosis_folder),
+             ("discovery", discovery_folder))}  # fmt: skip
 
 
 @pytest.fixture(scope="session")

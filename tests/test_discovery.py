@@ -316,3 +316,52 @@ def test_cli_choices_match_the_library():
     assert opts["n_poses"].default == inspect.signature(discover).parameters["n_poses"].default
     assert opts["rounds"].default == inspect.signature(discover).parameters["rounds"].default
     assert opts["separation"].const == disc.SEPARATION_TARGET and opts["separation"].default is None
+
+
+def test_the_discovery_page_shows_the_loop(run, tmp_path):
+    """``vtestbed report`` on a discover folder: the names, the round's rivals and separation as
+    discover.json records them, the proposed tests as the combined scenario file runs them, and
+    each stage's diagnosis folder; with validation tests, the gap at each stage."""
+    import shutil
+
+    from test_reports import parse
+
+    from vtestbed.reports import detect_kind, write_report
+
+    scenario, result, out = run
+    assert detect_kind(out) == "discovery"
+    t = parse(write_report(out, tmp_path / "page.html"))
+    summary = dict(t.tables["discover-summary"])
+    assert summary["named before"] == (", ".join(result["named_before"]) or "nothing")
+    assert summary["named after"] == ", ".join(result["named_after"])
+    assert int(summary["extra tests"]) == EXTRA and summary["rounds of discrimination tests"] == "1"
+    head, row = t.tables["discover-rounds"]
+    prop = result["proposal"]
+    assert row[2] == ", ".join(result["rivals"]["rivals"]) and int(row[4]) == EXTRA
+    assert float(row[5]) == pytest.approx(prop["separation_before"], abs=0.051)  # shown to 0.1
+    assert float(row[6]) == pytest.approx(prop["separation_after"], abs=0.051)
+    # the proposed tests: as the combined scenario (the world's input) holds them, in order
+    combined = load_scenario(out / "round1" / "scenario.toml")
+    shown = t.tables["proposed-round-1"][1:]
+    assert len(shown) == EXTRA
+    for k, cells in enumerate(shown):
+        i = len(scenario.poses) + k
+        np.testing.assert_allclose([float(c) for c in cells[1:7]], np.degrees(combined.poses[i]), atol=0.051)
+        assert (cells[7], cells[8]) == (combined.load.hooks[i], combined.load.anchors[i])
+        assert float(cells[9]) == pytest.approx(combined.load.tensions[i], abs=0.51)
+    folders = t.tables["discover-diagnoses"][1:]
+    assert [r[1] for r in folders] == [str(out / f"round{k}" / "diagnose") for k in (0, 1)]
+    assert "discover-gap" not in t.tables  # no validation tests in this scenario
+    # with validation tests (the numbers edited in): the gap at each stage, as recorded
+    copy = shutil.copytree(out, tmp_path / "with_validation", ignore=shutil.ignore_patterns("round*"))
+    data = json.loads((copy / "discover.json").read_text())
+    data["validation_gap_before"] = {"baseline": 1.734, "named": 1.412}
+    data["rounds"][0]["validation_gap"] = {"baseline": 1.688, "named": 1.031}
+    (copy / "discover.json").write_text(json.dumps(data))
+    t = parse(write_report(copy))
+    assert t.tables["discover-gap"][1:] == [
+        ["the scenario's tests", "1.734", "1.412"],
+        ["after round 1", "1.688", "1.031"],
+    ]
+    assert "fig-discover-gap" in t.ids
+    assert "discover-diagnoses" in t.ids and "discover-diagnoses" not in t.tables  # no round folder copied

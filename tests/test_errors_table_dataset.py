@@ -223,6 +223,8 @@ def _report_of_nothing(ctx):
 DIAGNOSIS = {"dataset": "ds", "alpha": 0.01, "noise_floor": {}, "detect": {}, "named": [], "rounds": [],
              "baseline": {}, "model": {}, "validation": {}, "identification_fit": {}}  # fmt: skip
 
+DISCOVERY = {"scenario": "s", "seed": 1, "alpha": 0.01, "named_before": [], "rounds": []}
+
 
 def _report_of(name: str, data: dict):
     """``vtestbed report`` on a folder holding only ``name`` with ``data`` (a sweep folder: a trials
@@ -313,6 +315,8 @@ CASES = {
     "repeats-loaded-repeat-too": _both_repeat_files,
     "report-diagnosis-field-type": _report_of("report.json", DIAGNOSIS | {"named": 5}),
     "report-diagnosis-field-deep": _report_of("report.json", DIAGNOSIS),
+    "report-discovery-field-type": _report_of("discover.json", DISCOVERY | {"named_before": 5}),
+    "report-discovery-field-deep": _report_of("discover.json", DISCOVERY | {"rounds": [{"round": 1}]}),
     "report-campaign-field-type": _report_of(
         "campaign.json", {"scenario": "s", "joint_names": [], "campaign": 5}
     ),

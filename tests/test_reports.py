@@ -161,6 +161,24 @@ def test_a_confusable_round_shows_the_runner_ups_shares(diagnosis_folder, tmp_pa
     assert [row[0] for row in rows if row[8] == "-"] == [labels[1]]
 
 
+def test_discovery_page_shows_each_stages_gap(pages, discovery_folder):
+    """The command wrote every stage's diagnosis page; the discovery page lists them, and its gap
+    table holds each stage's validation ratios as that stage's own report.json records them."""
+    result = json.loads((discovery_folder / "discover.json").read_text())
+    stages = [discovery_folder / f"round{k}" / "diagnose" for k in range(len(result["rounds"]) + 1)]
+    assert len(stages) == 2 and all((s / "report.html").is_file() for s in stages)
+    t = parse(pages["discovery"])
+    assert [row[2] for row in t.tables["discover-diagnoses"][1:]] == [str(s / "report.html") for s in stages]
+    rows = t.tables["discover-gap"][1:]
+    assert [row[0] for row in rows] == ["the scenario's tests", "after round 1"]
+    for row, stage in zip(rows, stages, strict=True):
+        val = json.loads((stage / "report.json").read_text())["validation"]
+        close(row[1], val["before"]["ratio_to_floor"], 4)
+        close(row[2], val["after"]["ratio_to_floor"], 4)
+    summary = dict(t.tables["discover-summary"])
+    assert summary["named after"] == (", ".join(result["named_after"]) or "nothing")
+
+
 def test_pages_are_self_contained_and_small(pages):
     for kind, page in pages.items():
         html = page.read_text(encoding="utf-8")

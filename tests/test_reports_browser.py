@@ -19,11 +19,13 @@ SECTIONS = {
     "run": ["scenario", "table5", "convergence", "validation", "residuals", "scene", "details"],
     "campaign": ["campaign", "summary", "trends", "spread", "pose-choice", "details"],
     "diagnosis": ["noise-floor", "detection", "candidates", "named", "gap", "scene", "details"],
+    "discovery": ["summary", "rounds", "proposed", "gap", "diagnoses", "details"],
 }
 FIGURES = {
     "run": ["fig-convergence", "fig-validation", "fig-residuals"],
     "campaign": ["fig-error-vs-noise", "fig-error-vs-tests", "fig-spread"],
     "diagnosis": ["fig-patterns", "fig-gap", "fig-effect"],
+    "discovery": ["fig-discover-gap"],
 }
 
 

@@ -24,12 +24,25 @@ def _cmd_discover(args) -> int:
         criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
         rounds=args.rounds, separation=args.separation, max_extra_tests=args.max_extra_tests,
     )  # fmt: skip
+    html = _pages(Path(args.out), len(result["rounds"]))
     if args.json:
         print(dumps(result, indent=1, default=float))
         return 0
     print(markdown(result))
-    print(f"wrote {Path(args.out) / 'discover.json'}, discover.md")
+    print(
+        f"wrote {Path(args.out) / 'discover.json'}, discover.md, {html} (each round's diagnosis: its report.html)"
+    )
     return 0
+
+
+def _pages(out: Path, rounds: int) -> Path:
+    """The HTML pages: each stage's diagnosis (``round<k>/diagnose/report.html``), then the
+    discovery page that points to them (``report.html``)."""
+    from ..reports import write_report
+
+    for k in range(rounds + 1):
+        write_report(out / f"round{k}" / "diagnose")
+    return write_report(out)
 
 
 def register(sub) -> None:
@@ -40,7 +53,10 @@ def register(sub) -> None:
     )
     p.add_argument("scenario", type=Path)
     p.add_argument(
-        "--out", type=output_dir, required=True, help="output folder (round0/, round1/, discover.json)"
+        "--out",
+        type=output_dir,
+        required=True,
+        help="output folder (round0/, round1/, discover.json, discover.md, report.html)",
     )
     p.add_argument("--extra-tests", type=integer(1, 50), default=10,
                    help="number of discrimination tests, 1-50 (default %(default)s)")  # fmt: skip

@@ -1,4 +1,5 @@
-"""``vtestbed report DIR [--out FILE]``: one self-contained HTML page of a run, campaign or diagnosis."""
+"""``vtestbed report DIR [--out FILE]``: one self-contained HTML page of a run, campaign, diagnosis
+or discovery."""
 
 from __future__ import annotations
 
@@ -18,9 +19,14 @@ def _cmd_report(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "report", help="write DIR/report.html: a self-contained page of a run, campaign or diagnosis folder"
+        "report",
+        help="write DIR/report.html: a self-contained page of a run, campaign, diagnosis or discovery folder",
     )
-    p.add_argument("dir", type=Path, help="a folder written by 'vtestbed run', 'sweep' or 'diagnose --out'")
+    p.add_argument(
+        "dir",
+        type=Path,
+        help="a folder written by 'vtestbed run', 'sweep', 'diagnose --out' or 'discover --out'",
+    )
     p.add_argument(
         "--out",
         type=output_file,

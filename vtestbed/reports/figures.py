@@ -147,3 +147,23 @@ def effect(report: dict) -> str | None:
     if not report.get("effect", {}).get("terms"):
         return None
     return drawn(lambda p: plot_effect(report, p))
+
+
+# ---------------------------------------------------------------------- discovery
+
+
+def discovery_gap(stages: list[tuple[str, float, float]]) -> str:
+    """Bars of the validation error over the noise floor at each stage of ``vtestbed discover``:
+    the paper's model beside the named terms (``sections_discovery.gap_stages``), a line at 1."""
+    plt = pyplot()
+    x = np.arange(len(stages))
+    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(stages), 3.2))
+    ax.bar(x - 0.2, [s[1] for s in stages], 0.4, label="paper's model", color="0.65")
+    ax.bar(x + 0.2, [s[2] for s in stages], 0.4, label="named terms", color="tab:blue")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise floor")
+    ax.set_xticks(x, [s[0] for s in stages], fontsize=8)
+    ax.set_ylabel("validation error / noise floor")
+    ax.set_ylim(0.0, max(1.1, *(max(s[1], s[2]) for s in stages)) * 1.1)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3)
+    ax.grid(alpha=0.3, axis="y")
+    return drawn(lambda p: save_figure(fig, p, dpi=90))

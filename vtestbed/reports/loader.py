@@ -1,11 +1,12 @@
-"""Loading a result folder: which kind it is (run, campaign, diagnosis) and what it holds.
+"""Loading a result folder: which kind it is (run, campaign, diagnosis, discovery) and what it holds.
 
 A folder is recognised by the files the commands write:
 
 * ``vtestbed run`` / ``demo``: ``result.json`` (with ``joints`` and ``table5``) and ``dataset/``;
 * ``vtestbed sweep``: ``campaign.json`` and ``trials/part-*.parquet``;
 * ``vtestbed diagnose --out``: ``report.json`` with a ``detect`` table (its ``dataset`` field
-  names the dataset it diagnosed).
+  names the dataset it diagnosed);
+* ``vtestbed discover --out``: ``discover.json`` (its rounds' diagnoses in ``round<k>/diagnose``).
 
 Anything else is refused with a :class:`ReportError` that lists the files looked for.
 """
@@ -19,13 +20,14 @@ from pathlib import Path
 from ..errors import VtestbedError
 from ..files import read_json
 
-KINDS = ("run", "campaign", "diagnosis")
+KINDS = ("run", "campaign", "diagnosis", "discovery")
 RUN_FILE = "result.json"
 CAMPAIGN_FILE = "campaign.json"
 DIAGNOSIS_FILE = "report.json"
+DISCOVERY_FILE = "discover.json"
 LOOKED_FOR = (
     f"{RUN_FILE} (vtestbed run), {CAMPAIGN_FILE} with trials/*.parquet (vtestbed sweep), "
-    f"{DIAGNOSIS_FILE} with a 'detect' table (vtestbed diagnose --out)"
+    f"{DIAGNOSIS_FILE} with a 'detect' table (vtestbed diagnose --out), {DISCOVERY_FILE} (vtestbed discover --out)"
 )
 
 
@@ -40,11 +42,12 @@ class ResultFolder:
     Attributes
     ----------
     kind : str
-        ``"run"``, ``"campaign"`` or ``"diagnosis"``.
+        One of :data:`KINDS`.
     root : Path
         The folder.
     data : dict
-        ``result.json`` (run), ``campaign.json`` (campaign) or ``report.json`` (diagnosis).
+        ``result.json`` (run), ``campaign.json`` (campaign), ``report.json`` (diagnosis) or
+        ``discover.json`` (discovery).
     dataset : Path or None
         The dataset folder the result was computed from, if it is on disk (not for a campaign).
     trials : pandas.DataFrame or None
@@ -163,6 +166,8 @@ DIAGNOSIS_FIELDS = {"dataset": str, "alpha": float, "noise_floor": dict, "detect
                     "rounds": list, "baseline": dict, "model": dict, "validation": dict,
                     "identification_fit": dict}  # fmt: skip
 CAMPAIGN_FIELDS = {"scenario": str, "joint_names": list, "campaign": dict}
+# ... and from discover.json (sections_discovery.py)
+DISCOVERY_FIELDS = {"scenario": str, "seed": float, "alpha": float, "named_before": list, "rounds": list}
 _JSON_NAMES = {str: "a string", float: "a number", dict: "a table", list: "a list"}
 
 
@@ -191,16 +196,16 @@ def _typed(data: dict, path: Path, fields: dict) -> dict:
         ok = _is_number(value) if kind is float else isinstance(value, kind)
         if not ok:
             raise _bad(path, key, f"must be {_JSON_NAMES[kind]}, got {_json_value(value)}")
-    for key in ("named", "joint_names"):
+    for key in ("named", "named_before", "joint_names"):
         if key in fields and not all(isinstance(v, str) for v in data[key]):
             raise _bad(path, key, "must be a list of strings")
     if "rounds" in fields and not all(isinstance(r, dict) for r in data["rounds"]):
-        raise _bad(path, "rounds", "must be a list of tables, one per round of the search")
+        raise _bad(path, "rounds", "must be a list of tables, one per round")
     return data
 
 
 def detect_kind(root: str | Path) -> str:
-    """The kind of result in ``root``: ``run``, ``campaign`` or ``diagnosis``.
+    """The kind of result in ``root``: one of :data:`KINDS`.
 
     Raises
     ------
@@ -214,6 +219,8 @@ def detect_kind(root: str | Path) -> str:
         return "campaign"
     if (root / RUN_FILE).is_file():
         return "run"
+    if (root / DISCOVERY_FILE).is_file():
+        return "discovery"
     if (root / DIAGNOSIS_FILE).is_file():
         data = read_json(root / DIAGNOSIS_FILE, "diagnosis report", ReportError)
         if "detect" in data:
@@ -242,6 +249,11 @@ def load_result(root: str | Path) -> ResultFolder:
                 "run 'vtestbed sweep' into it first"
             )
         return ResultFolder(kind, root, data, None, trials)
+    if kind == "discovery":
+        path = root / DISCOVERY_FILE
+        return ResultFolder(
+            kind, root, _typed(read_json(path, "discover result", ReportError), path, DISCOVERY_FIELDS)
+        )
     path = root / DIAGNOSIS_FILE
     data = _typed(read_json(path, "diagnosis report", ReportError), path, DIAGNOSIS_FIELDS)
     # a relative path was written from another working directory: `diagnose DATA --out DATA/diagnose`

@@ -15,9 +15,9 @@ from markupsafe import Markup
 
 from ..errors import VtestbedError
 from ..files import write_atomic
-from . import sections_campaign, sections_diagnosis, sections_run
+from . import sections_campaign, sections_diagnosis, sections_discovery, sections_run
 from .blocks import Num, Section
-from .loader import CAMPAIGN_FILE, DIAGNOSIS_FILE, ReportError, ResultFolder, load_result
+from .loader import CAMPAIGN_FILE, DIAGNOSIS_FILE, DISCOVERY_FILE, ReportError, ResultFolder, load_result
 
 REPORT_FILE = "report.html"
 
@@ -25,8 +25,13 @@ SECTIONS = {
     "run": sections_run.SECTIONS,
     "campaign": sections_campaign.SECTIONS,
     "diagnosis": sections_diagnosis.SECTIONS,
+    "discovery": sections_discovery.SECTIONS,
 }
-TITLES = {"run": "Run report", "campaign": "Campaign report", "diagnosis": "Diagnosis report"}
+TITLES = {"run": "Run report", "campaign": "Campaign report", "diagnosis": "Diagnosis report",
+          "discovery": "Discovery report"}  # fmt: skip
+# the file each kind's sections read beyond its checked top-level fields, and the command that writes it
+SOURCES = {"campaign": (CAMPAIGN_FILE, "sweep"), "diagnosis": (DIAGNOSIS_FILE, "diagnose --out"),
+           "discovery": (DISCOVERY_FILE, "discover --out")}  # fmt: skip
 
 
 def _script_json(text: str) -> Markup:
@@ -100,13 +105,13 @@ def write_report(root: str | Path, out: str | Path | None = None) -> Path:
     except (KeyError, TypeError, AttributeError, IndexError, ValueError) as exc:
         if folder.kind == "run":  # check_run read every field the run sections use: a defect of ours
             raise
-        # a campaign's or diagnosis's files are checked to their top-level fields only; what lies
-        # deeper was written by `vtestbed sweep` / `diagnose`, so a wrong shape there is an edited file
-        source = folder.root / (CAMPAIGN_FILE if folder.kind == "campaign" else DIAGNOSIS_FILE)
+        # a campaign's, diagnosis's or discovery's file is checked to its top-level fields only; what
+        # lies deeper was written by `vtestbed sweep` / `diagnose` / `discover`: a wrong shape there
+        # is an edited file
+        name, command = SOURCES[folder.kind]
         raise ReportError(
-            f"{source}: a field the {folder.kind} report reads is missing or of the wrong type "
-            f"({type(exc).__name__}: {exc}); write the file again with 'vtestbed "
-            f"{'sweep' if folder.kind == 'campaign' else 'diagnose --out'}'"
+            f"{folder.root / name}: a field the {folder.kind} report reads is missing or of the wrong type "
+            f"({type(exc).__name__}: {exc}); write the file again with 'vtestbed {command}'"
         ) from None
     out.parent.mkdir(parents=True, exist_ok=True)  # `report --out` checked that it may be created
     write_atomic(out, lambda tmp: tmp.write_text(html, encoding="utf-8"))  # plotly.js is not ASCII
