@@ -177,6 +177,9 @@ def test_discovery_page_shows_each_stages_gap(pages, discovery_folder):
         close(row[2], val["after"]["ratio_to_floor"], 4)
     summary = dict(t.tables["discover-summary"])
     assert summary["named after"] == (", ".join(result["named_after"]) or "nothing")
+    shown = dict(t.tables["versions"])  # as discover.json records them, not those installed now
+    assert shown["versions"].startswith("recorded in discover.json")
+    assert shown["numpy"] == result["versions"]["numpy"] and shown["mujoco"] == result["versions"]["mujoco"]
 
 
 def test_pages_are_self_contained_and_small(pages):

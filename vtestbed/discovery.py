@@ -57,6 +57,7 @@ from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
 from .researcher.scan_mean import load_with_floor
 from .researcher.statics import ExactStatics
+from .run_record import versions
 from .scenario import Scenario, load_scenario
 from .scenario_writer import proposal_text, scenario_text
 from .transforms import invert
@@ -280,7 +281,8 @@ def discover(
               "alpha_after_round": alpha * ADAPTIVE_LEVEL_SHARE, "rank_by": rep0["rank_by"],
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
               "rivals": None, "proposal": None, "named_after": None,
-              "validation_gap_before": validation_summary(rep0), "validation_gap_after": None, "rounds": []}  # fmt: skip
+              "validation_gap_before": validation_summary(rep0), "validation_gap_after": None, "rounds": [],
+              "versions": versions()}  # fmt: skip
     rivals = disc.rivals_from_report(rep0, alpha)
     if rivals is None and always:
         rivals = disc.confirming_rivals(rep0)

@@ -30,9 +30,12 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     the rounds after a first name). The rounds are read in order:
 
     * *confusable*: the runner-up is within :data:`CONFUSABLE_MARGIN` of the chosen term; the rivals
-      are the plausible candidates that close to it (the chosen one first), with the third place
-      kept for the candidate other than these two that best stands in for the runner-up (the
-      round's ``runner_overlap``, at least :data:`STAND_IN_R2` of its pattern). Without that place, a round with four close models tested the scale world's link 2
+      are the plausible candidates that close to it (the chosen one first). When the second of
+      them is the round's runner-up (the best other *significant* candidate, whose pattern's
+      shares the diagnosis records as ``runner_overlap``; a plausible candidate below the level
+      can rank between them, and then no place is kept), the third place is kept for the
+      candidate other than these two that best stands in for the runner-up (at least
+      :data:`STAND_IN_R2` of its pattern). Without that place, a round with four close models tested the scale world's link 2
       against the scale and two others and never against the ``block_offset`` that reproduces
       96 % of the scale's pattern, which won after the round;
     * *marginal*, a weak name: the chosen term's p-value is above its round's level over

@@ -10,7 +10,7 @@ the noise). Each stage's full diagnosis is a diagnosis folder of its own
 
 from __future__ import annotations
 
-from ..researcher.diagnose import RANK_LABELS
+from ..researcher.diagnose import rank_label
 from . import figures
 from .blocks import Figure, KeyValues, Num, Section, Table, Text, versions
 from .loader import DIAGNOSIS_FILE, ResultFolder
@@ -56,7 +56,7 @@ def summary(folder: ResultFolder) -> Section:
     ]
     if rounds and r.get("alpha_after_round") is not None:  # discover.json before 2026-11-28: none
         items.append(("alpha after a round", Num(r["alpha_after_round"], "g")))
-    items += [("candidates ranked by", RANK_LABELS.get(r.get("rank_by"), str(r.get("rank_by")))),
+    items += [("candidates ranked by", rank_label(r)),  # discover.json before 2026-11-26: BIC
               ("named before", _names(r["named_before"])),
               ("rounds of discrimination tests", str(len(rounds))),
               ("extra tests", str(sum(len(k["proposal"]["tests"]) for k in rounds)))]  # fmt: skip
