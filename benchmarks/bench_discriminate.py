@@ -16,7 +16,9 @@ is the size at 85 % power, ``bench_discrepancy.py --limit-power 0.85``). Correct
 are exactly ``--expected`` (default ``link_compliance(link 2)``; ``a+b`` for two hidden effects,
 ``nothing`` for the clean world, ``--factor 0``); "family" = the named effect names are exactly
 those of ``--expected``. Datasets go to ``--out/s<seed>`` (about 200 MB each; deleted
-unless --keep).
+unless --keep). A confusable seed's row also holds the rivals of the rule before 2026-11-29
+(``rivals_without_reserve``: no place kept for the runner-up's stand-in), so a re-run shows which
+seeds' rounds that rule changed.
 """
 
 from __future__ import annotations
