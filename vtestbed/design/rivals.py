@@ -35,9 +35,9 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
       shares the diagnosis records as ``runner_overlap``; a plausible candidate below the level
       can rank between them, and then no place is kept), the third place is kept for the
       candidate other than these two that best stands in for the runner-up (at least
-      :data:`STAND_IN_R2` of its pattern). Without that place, a round with four close models tested the scale world's link 2
-      against the scale and two others and never against the ``block_offset`` that reproduces
-      96 % of the scale's pattern, which won after the round;
+      :data:`STAND_IN_R2` of its pattern). Without that place, a round with four close models
+      tested the scale world's link 2 against the scale and two others and never against the
+      ``block_offset`` that reproduces 96 % of the scale's pattern, which won after the round;
     * *marginal*, a weak name: the chosen term's p-value is above its round's level over
       :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
       within :data:`CONFUSABLE_MARGIN` of the chosen one;
@@ -78,9 +78,9 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
         delta = rnd.get("delta", rnd.get("delta_bic"))  # reports before 2026-11-26: the BIC lead
         if chosen and delta is not None and delta < CONFUSABLE_MARGIN:
-            # the runner-up's best stand-in takes the third place (when it is not a close rival
-            # already): the runner-up may be the effect, and the round must not leave it
-            # undecided against a candidate that reproduces most of its pattern
+            # the runner-up's best stand-in other than the chosen term takes the third place: the
+            # runner-up may be the effect, and the round must not leave it undecided against a
+            # candidate that reproduces most of its pattern
             runner = [label for label in close[1:2] if label == rnd.get("runner_up")]
             alike = _stand_ins(rnd, runner[0], dropped) if runner else []
             reserved = [label for label in alike if label not in close[:2]][:1]  # often the chosen

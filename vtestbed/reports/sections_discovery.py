@@ -27,6 +27,12 @@ def _names(labels) -> str:
     return ", ".join(labels) if labels else "nothing"
 
 
+def _lead(measured: dict) -> str:
+    """The best rival and its BIC lead (none with a single rival)."""
+    delta = measured.get("delta_bic")
+    return measured["best"] if delta is None else f"{measured['best']} by {delta:.1f}"
+
+
 def gap_stages(result: dict) -> list[tuple[str, float, float]]:
     """``(stage, paper's model, named terms)``: the validation error over the floor at each stage,
     the scenario's tests first, then after each round; empty without validation tests."""
@@ -82,7 +88,7 @@ def rounds(folder: ResultFolder) -> Section | None:
         rows.append([str(k["round"]), REASONS.get(k["rivals"]["reason"], k["rivals"]["reason"]),
                      _names(k["rivals"]["rivals"]), _names(k["rivals"]["base_terms"]), str(len(p["tests"])),
                      Num(p["separation_before"], ".1f"), Num(p["separation_after"], ".1f"),
-                     f"{mb['best']} by {mb['delta_bic']:.1f}", f"{ma['best']} by {ma['delta_bic']:.1f}",
+                     _lead(mb), _lead(ma),
                      _names(k["named"])])  # fmt: skip
     columns = ["round", "why", "rivals", "on top of", "tests", "predicted T before", "predicted T after",
                "measured: best rival by BIC, before", "after", "named after the round"]  # fmt: skip
