@@ -81,8 +81,8 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
             # the runner-up's best stand-in other than the chosen term takes the third place: the
             # runner-up may be the effect, and the round must not leave it undecided against a
             # candidate that reproduces most of its pattern
-            runner = [label for label in close[1:2] if label == rnd.get("runner_up")]
-            alike = _stand_ins(rnd, runner[0], dropped) if runner else []
+            runner_second = len(close) > 1 and close[1] == rnd.get("runner_up")
+            alike = _stand_ins(rnd, close[1], dropped) if runner_second else []
             reserved = [label for label in alike if label not in close[:2]][:1]  # often the chosen
             rivals = dict.fromkeys([*close[:2], *reserved, *close[2:]])
             return {"reason": "confusable", "rivals": list(rivals)[:MAX_RIVALS], **base}

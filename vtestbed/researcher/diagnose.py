@@ -240,6 +240,16 @@ def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n
     return chosen, current, dropped
 
 
+def _record_shares(ctx, white, rows: list, column: str, label: str, remaining, fits: dict, base) -> None:
+    """Write into ``rows[column]`` each candidate's share of ``label``'s fitted pattern
+    (:func:`stand_in_overlap` over the ``remaining`` candidates, with the ``base`` terms named
+    before; ``label``'s own row: None)."""
+    term = next(c for c in remaining if c.label == label)
+    overlap = stand_in_overlap(ctx, white, fits[label], term, base, [c for c in remaining if c is not term])
+    for row in rows:
+        row[column] = overlap.get(row["label"])
+
+
 def _score(row: dict, rank_by: str) -> tuple[float, float]:
     """A candidate's rank (lower is better): ``rank_by``'s value, BIC on a tie (a leave-one-test-out
     error is ``inf`` when some test cannot be left out)."""
@@ -306,20 +316,12 @@ def name_effects(
             best[0] if best is not None else min(scored, key=lambda r: _score(r, rank_by), default=None)
         )
         if lead_row is not None:
-            lead = next(c for c in remaining if c.label == lead_row["label"])
-            rest = [c for c in remaining if c is not lead]
-            overlap = stand_in_overlap(ctx, white, fits[lead.label], lead, chosen, rest)
-            for row in rows:  # the lead's own row: None
-                row["overlap"] = overlap.get(row["label"])
+            _record_shares(ctx, white, rows, "overlap", lead_row["label"], remaining, fits, chosen)
         margin = _margin(runner, best, rank_by)
         if margin is not None and margin < CONFUSABLE_MARGIN:
             # a confusable round: the runner-up could be the effect, and so could what stands in
             # for it (a block offset for a scanner scale), which a design must then also ask about
-            rival = next(c for c in remaining if c.label == runner["label"])
-            rest = [c for c in remaining if c is not rival]
-            overlap = stand_in_overlap(ctx, white, fits[rival.label], rival, chosen, rest)
-            for row in rows:  # the runner-up's own row: None
-                row["runner_overlap"] = overlap.get(row["label"])
+            _record_shares(ctx, white, rows, "runner_overlap", runner["label"], remaining, fits, chosen)
         base_terms, base_chi2 = tuple(t.label for t in chosen), current.chi2
         dropped = []
         if best is not None:
