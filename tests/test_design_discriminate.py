@@ -226,11 +226,18 @@ def test_confusable_rivals_keep_room_for_the_runner_ups_stand_in():
     close[4]["runner_overlap"] = 0.96  # a stand-in the stepwise search dropped is not a rival
     dropped = _report([rnd]) | {"dropped": {"e": "..."}}
     assert disc.rivals_from_report(dropped)["rivals"] == ["a", "b", "c", "d"]
-    # a plausible candidate below the level ranks second: the shares are of the runner-up, not of
-    # it, and no place is kept (the rule measured in docs/discrepancy_benchmark.md)
+    # a plausible candidate below the level ranks second: the place follows the runner-up (the
+    # shares are of the runner-up, not of x), and e takes the fourth place
     close[1]["bic"] = 103.5
     close.append(_row("x", 3e-3, 101.0, False))
-    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "x", "b", "c"]
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "x", "b", "e"]
+    # two of them between: the runner-up is fourth, and no place is left for its stand-in
+    close.append(_row("y", 3e-3, 102.0, False))
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "x", "y", "b"]
+    # the runner-up's best stand-in ranked before it (x) is a rival already: the next one (e)
+    close.pop()
+    close[-1]["runner_overlap"] = 0.99
+    assert disc.rivals_from_report(_report([rnd]))["rivals"] == ["a", "x", "b", "e"]
 
 
 def test_confirming_rivals_after_a_decisive_diagnosis():

@@ -128,7 +128,8 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
         "**After**: named `joint_coupling(2,3)` (alpha 0.005, the level after a round: docs/discrepancy.md)."
         in md
     )
-    assert f"**Undecided** (marginal): {', '.join(f'`{r}`' for r in result['rivals']['rivals'])}." in md
+    rivals = ", ".join(f"`{r}`" for r in result["rivals"]["rivals"])
+    assert f"**Rivals** (marginal: weak evidence for the lead): {rivals}." in md
     # a fixed-size round says nothing of a target; a sized one says whether it reached it
     assert prop["separation_target"] is None and prop["target_met"] is None and "(target" not in md
     sized = json.loads(json.dumps(result, default=float))
@@ -225,7 +226,8 @@ def test_always_confirms_a_decisive_name_with_a_round_of_tests(tmp_path):
     before, after = result["measured_before"], result["measured_after"]
     assert before["best"] == after["best"] == named[0]
     assert after["delta_bic"] > before["delta_bic"]
-    assert "**Confirming** (decisive, `--always`)" in (tmp_path / "out" / "discover.md").read_text()
+    md = (tmp_path / "out" / "discover.md").read_text()
+    assert "**Rivals** (confirm: a decisive name against its closest rivals (--always)): " in md
 
 
 @pytest.mark.slow

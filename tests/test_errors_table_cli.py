@@ -165,6 +165,7 @@ CASES = {
     "design-poses-ragged": command("poses", "design", *PAPER_PRIOR, "--poses", "{tmp}/ragged.json"),
     "design-region-option-random-pool": command("poses", "design", *PAPER_PRIOR, "--box", "1,2,3"),
     "design-prior-negative": command("poses", "design", "--stiffness-prior=-1,2,3,4,5,6"),
+    "diagnose-scale-tolerance-negative": command("diagnose", "{tmp}/ds", "--scale-tolerance=-5"),
     "diagnose-rank-unknown": command("diagnose", "{tmp}/ds", "--rank", "aic"),
     "diagnose-candidates-none-and-names": command(
         "diagnose", "{tmp}/ds", "--candidates", "none,link_compliance"

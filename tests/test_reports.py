@@ -137,6 +137,13 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
     for row, k1 in zip(k, report["model"]["stiffness_Nm_per_rad"]):
         close(row[3], k1 * 1e3, 5)
     assert "link_compliance(link 2)" in report["named"]  # the hidden link is found, as in the README
+    scale = report["scale_check"]  # the block's size as a length standard: shown as measured
+    lo, hi = scale["interval_ppm"]
+    assert "scale-check" in t.ids and not scale["beyond"]
+    assert (
+        f"at {scale['scale_ppm']:+.0f} ppm (95 % interval {lo:+.0f} to {hi:+.0f} ppm"
+        in pages["diagnosis"].read_text()
+    )
     assert "fig-gap" in t.ids and "fig-effect" in t.ids and "scene-3d" in t.ids
 
 

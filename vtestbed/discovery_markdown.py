@@ -7,6 +7,7 @@ noise-floor units) and the measured BIC lead of the best rival.
 
 from __future__ import annotations
 
+from .design.rivals import ROUND_KINDS
 from .researcher.diagnose import confusable_margin
 
 __all__ = ["markdown"]
@@ -38,9 +39,7 @@ def markdown(result: dict) -> str:
     mb, ma = result["measured_before"], result["measured_after"]
     lines += [
         "",
-        {"confirm": "**Confirming** (decisive, `--always`)", "screen": "**Screening** (nothing named, `--always`)"}
-        .get(r["reason"], f"**Undecided** ({r['reason']})")
-        + f": {names(r['rivals'])}"
+        f"**Rivals** ({ROUND_KINDS.get(r['reason'], r['reason'])}): {names(r['rivals'])}"
         + (f" on top of {names(r['base_terms'])}" if r["base_terms"] else "") + ".",
         f"**Proposed** {_tests(len(p['tests']))} more ({p['criterion']}-optimal among {p['pool_size']} "
         f"candidates; {p['tests_refused_by_the_lab']} refused by the lab): predicted separation "

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..files import dumps
-from .args import output_dir
+from ..researcher.block_size import SCALE_TOLERANCE_PPM, SCALE_TOLERANCE_RANGE_PPM
+from .args import number, output_dir
 
 
 def _cmd_diagnose(args) -> int:
@@ -22,7 +23,8 @@ def _cmd_diagnose(args) -> int:
     if not 0.0 < args.alpha < 1.0:
         raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
     rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
-    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics, **rank)
+    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics,
+                      scale_tolerance_ppm=args.scale_tolerance, **rank)  # fmt: skip
     html = None
     if args.out:
         from ..reports import write_report
@@ -62,5 +64,8 @@ def register(sub) -> None:
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
     p.add_argument("--rank", choices=("press", "bic"), help="how to rank the significant candidates: press (their leave-one-test-out "
                    "prediction error, the default) or bic")  # fmt: skip
+    p.add_argument("--scale-tolerance", type=number(*SCALE_TOLERANCE_RANGE_PPM, "ppm"), default=SCALE_TOLERANCE_PPM,
+                   metavar="PPM", help="the scale check on the block's declared size: |scale| up to this is the block's "
+                   "and its edges' tolerance (default %(default)g ppm: sharp edges known to 0.08 mm on 80 mm)")  # fmt: skip
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_diagnose)

@@ -20,6 +20,12 @@ from ..researcher.diagnose import (
 BASELINE = "baseline"  # the label of the model without a further term
 MARGINAL_FACTOR = 10.0  # evidence within this factor of the test's level is marginal
 MAX_RIVALS = 4  # models in one discrimination design
+ROUND_KINDS = {  # why a round of discrimination tests is run: its rivals' ``reason``, described
+    "confusable": "confusable: a runner-up within the margin of the chosen term",
+    "marginal": "marginal: weak evidence for the lead",
+    "confirm": "confirm: a decisive name against its closest rivals (--always)",
+    "screen": "screen: nothing named, the best candidates against the baseline (--always)",
+}
 
 
 def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
@@ -30,14 +36,15 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     the rounds after a first name). The rounds are read in order:
 
     * *confusable*: the runner-up is within :data:`CONFUSABLE_MARGIN` of the chosen term; the rivals
-      are the plausible candidates that close to it (the chosen one first). When the second of
-      them is the round's runner-up (the best other *significant* candidate, whose pattern's
-      shares the diagnosis records as ``runner_overlap``; a plausible candidate below the level
-      can rank between them, and then no place is kept), the third place is kept for the
-      candidate other than these two that best stands in for the runner-up (at least
-      :data:`STAND_IN_R2` of its pattern). Without that place, a round with four close models
-      tested the scale world's link 2 against the scale and two others and never against the
-      ``block_offset`` that reproduces 96 % of the scale's pattern, which won after the round;
+      are the plausible candidates that close to it (the chosen one first). The place after the
+      round's runner-up (the best other *significant* candidate, whose pattern's shares the
+      diagnosis records as ``runner_overlap``) is kept for the candidate not ranked before it that
+      best stands in for the runner-up (at least :data:`STAND_IN_R2` of its pattern), when that
+      place is among the :data:`MAX_RIVALS`: the third place, or the fourth when a plausible
+      candidate below the level ranks between the chosen term and the runner-up. Without that
+      place, a round with four close models tested the scale world's link 2 against the scale
+      and two others and never against the ``block_offset`` that reproduces 96 % of the scale's
+      pattern, which won after the round;
     * *marginal*, a weak name: the chosen term's p-value is above its round's level over
       :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
       within :data:`CONFUSABLE_MARGIN` of the chosen one;
@@ -81,10 +88,13 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
             # the runner-up's best stand-in other than the chosen term takes the third place: the
             # runner-up may be the effect, and the round must not leave it undecided against a
             # candidate that reproduces most of its pattern
-            runner_second = len(close) > 1 and close[1] == rnd.get("runner_up")
-            alike = _stand_ins(rnd, close[1], dropped) if runner_second else []
-            reserved = [label for label in alike if label not in close[:2]][:1]  # often the chosen
-            rivals = dict.fromkeys([*close[:2], *reserved, *close[2:]])
+            # (a plausible candidate below the level may rank between it and the chosen term: the
+            # place then follows the runner-up, while there is room for it among the rivals)
+            runner = rnd.get("runner_up")
+            ahead = close.index(runner) + 1 if runner in close[1 : MAX_RIVALS - 1] else 0
+            alike = _stand_ins(rnd, runner, dropped) if ahead else []
+            reserved = [label for label in alike if label not in close[:ahead]][:1]  # often the chosen
+            rivals = dict.fromkeys([*close[:ahead], *reserved, *close[ahead:]])
             return {"reason": "confusable", "rivals": list(rivals)[:MAX_RIVALS], **base}
         if chosen is None or chosen["p_value"] > level / MARGINAL_FACTOR:
             rivals = dict.fromkeys([BASELINE, *close, *_stand_ins(rnd, lead["label"], dropped)])

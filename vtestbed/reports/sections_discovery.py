@@ -10,17 +10,11 @@ the noise). Each stage's full diagnosis is a diagnosis folder of its own
 
 from __future__ import annotations
 
+from ..design.rivals import ROUND_KINDS
 from ..researcher.diagnose import rank_label
 from . import figures
 from .blocks import Figure, KeyValues, Num, Section, Table, Text, versions
 from .loader import DIAGNOSIS_FILE, ResultFolder
-
-REASONS = {
-    "confusable": "confusable: a runner-up within the margin of the chosen term",
-    "marginal": "marginal: weak evidence for the lead",
-    "confirm": "confirm: a decisive name against its closest rivals (--always)",
-    "screen": "screen: nothing named, the best candidates against the baseline (--always)",
-}
 
 
 def _names(labels) -> str:
@@ -85,7 +79,7 @@ def rounds(folder: ResultFolder) -> Section | None:
     rows = []
     for k in r["rounds"]:
         p, mb, ma = k["proposal"], k["measured_before"], k["measured_after"]
-        rows.append([str(k["round"]), REASONS.get(k["rivals"]["reason"], k["rivals"]["reason"]),
+        rows.append([str(k["round"]), ROUND_KINDS.get(k["rivals"]["reason"], k["rivals"]["reason"]),
                      _names(k["rivals"]["rivals"]), _names(k["rivals"]["base_terms"]), str(len(p["tests"])),
                      Num(p["separation_before"], ".1f"), Num(p["separation_after"], ".1f"),
                      _lead(mb), _lead(ma),

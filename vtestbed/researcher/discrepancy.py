@@ -18,6 +18,8 @@ import numpy as np
 from ..files import write_json_atomic, write_text_atomic
 from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
+from . import block_size
+from .block_size import ScaleCheck
 from .candidates import ModelContext, candidates
 from .diagnose import (
     CONFUSABLE_MARGIN,
@@ -48,6 +50,7 @@ def diagnose(
     out=None,
     statics: str = "exact",
     rank_by: str = DEFAULT_RANK,
+    scale_tolerance_ppm: float = block_size.SCALE_TOLERANCE_PPM,
 ) -> dict:
     """Run the workflow on the dataset in ``root``; returns the report (and writes it to ``out``).
 
@@ -60,9 +63,11 @@ def diagnose(
     :func:`default_candidates`; ``()`` tests none, the detection alone: the report's model is then
     the baseline). ``rank_by``:
     how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
-    leave-one-test-out prediction error).
+    leave-one-test-out prediction error). ``scale_tolerance_ppm``: the tolerance of the scale
+    check on the block's declared size (:mod:`.block_size`; report only, it names nothing).
     """
     require_rank(rank_by)  # before any work: the dataset's own errors come after
+    block_size.require_tolerance(scale_tolerance_ppm)
     if isinstance(names, str):  # "a,b" as on the command line, not its characters
         names = tuple(n.strip() for n in names.split(","))
     names = default_candidates(statics) if names is None else tuple(names)
@@ -92,6 +97,9 @@ def diagnose(
             if note:
                 absorbed[cand.label] = note
     std = floor.component_std
+    scale = block_size.scale_check(
+        [m.edge_lengths for m in measurements], setup.block_edge, alpha, scale_tolerance_ppm
+    )
     report = {
         "dataset": str(root),
         "alpha": alpha,
@@ -101,6 +109,7 @@ def diagnose(
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples),
                         "reference_scans": floor.reference_scans, "loaded_scans": floor.loaded_scans,
                         "loaded_scatter": floor.loaded_scatter and floor.loaded_scatter.to_dict()},
+        "scale_check": scale and scale.to_dict(),  # None: a mesh target, or fewer than 3 tests
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
@@ -297,6 +306,8 @@ def markdown(report: dict, joint_names) -> str:
         lines.append(f"- `{chosen}`'s pattern is also reproduced by "
                      + ", ".join(f"`{label}` ({share:.0%})" for label, share in alike)
                      + ": it may stand for one of them (`vtestbed discover --always` tests them against each other)")  # fmt: skip
+    if report.get("scale_check"):  # reports before 2026-11-29 have none
+        lines += ["", "**Scale.** " + ScaleCheck.from_dict(report["scale_check"]).sentence()]
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(

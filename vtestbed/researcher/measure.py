@@ -25,7 +25,7 @@ from ..errors import DatasetError, ImplausibleDataError, ScanError, VtestbedErro
 from ..ply import MAX_CLOUD_COORDINATE_M, read_ply
 from ..robots import load_robot
 from ..transforms import displacement_in_block_frame, invert
-from . import cloud
+from . import block_size, cloud
 from .identify import IdentificationResult, identify
 from .kinematics import ArmKinematics
 from .plausibility import plausibility_notes
@@ -49,6 +49,10 @@ class TestMeasurement:
     # (unloaded, loaded) path of each cloud fit, cloud.BlockFrame.method: "fast", or "ransac" when
     # a check of the fast path failed (the nominal pose far off, clutter, a face cut off)
     fit_methods: tuple[str, str] = ("fast", "fast")
+    # (unloaded, loaded) apparent edge lengths (2, 6) [m] of the plain block's scans (a length
+    # standard for the scanner's scale: block_size.apparent_edges); None for a mesh target, or
+    # when not asked for (measure_arrays(..., edges=True); diagnose asks)
+    edge_lengths: np.ndarray | None = None
 
 
 def wrench_at_block(wrench_sensor: np.ndarray, setup: DatasetSetup) -> np.ndarray:
@@ -123,13 +127,16 @@ def read_scan(path: Path, label: str) -> np.ndarray:
     return points
 
 
-def measure_test(record: TestRecord, setup: DatasetSetup, kin: ArmKinematics) -> TestMeasurement:
-    """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian."""
+def measure_test(
+    record: TestRecord, setup: DatasetSetup, kin: ArmKinematics, edges: bool = False
+) -> TestMeasurement:
+    """Fit both clouds of one recorded test and build its wrench, displacement and Jacobian (and,
+    with ``edges``, the block's apparent edge lengths: :attr:`TestMeasurement.edge_lengths`)."""
     clouds = [
         read_scan(path, f"test {record.test_id}, {label} cloud")
         for label, path in (("unloaded", record.cloud_unloaded), ("loaded", record.cloud_loaded))
     ]
-    return measure_arrays(record, clouds[0], clouds[1], setup, kin)
+    return measure_arrays(record, clouds[0], clouds[1], setup, kin, edges)
 
 
 def measure_arrays(
@@ -138,6 +145,7 @@ def measure_arrays(
     cloud_loaded: np.ndarray,
     setup: DatasetSetup,
     kin: ArmKinematics,
+    edges: bool = False,
 ) -> TestMeasurement:
     """As :func:`measure_test`, with the clouds (N, 3) [m, scanner frame] already in memory."""
     q, nominal = nominal_block_frame(record, setup, kin)
@@ -149,6 +157,10 @@ def measure_arrays(
         fits.append(fit_scan_frame(points, nominal, setup, where))
         nominal = fits[-1].pose
     frames = [f.pose for f in fits]
+    lengths = None
+    if edges and setup.target is None:  # the plain block: its declared edge is a length standard
+        lengths = np.array([block_size.apparent_edges(points, fit.pose, setup.block_edge, fit.rms_residual_m)
+                          for points, fit in zip((cloud_unloaded, cloud_loaded), fits, strict=True)])  # fmt: skip
     return TestMeasurement(
         test_id=record.test_id,
         group=record.group,
@@ -160,11 +172,15 @@ def measure_arrays(
         frame_loaded=frames[1],
         readings=(np.array(record.wrench_unloaded, dtype=float), np.array(record.wrench_loaded, dtype=float)),
         fit_methods=(fits[0].method, fits[1].method),
+        edge_lengths=lengths,
     )
 
 
-def load_measurements(root: str | Path, progress: Callable[[int, int], None] | None = None):
-    """Read and reduce a dataset: returns (setup, list of TestMeasurement)."""
+def load_measurements(
+    root: str | Path, progress: Callable[[int, int], None] | None = None, edges: bool = False
+):
+    """Read and reduce a dataset: returns (setup, list of TestMeasurement); ``edges``: with each
+    test's apparent block edges (:mod:`.block_size`, about 3 ms a scan)."""
     root = Path(root)
     setup = read_setup(root)
     records = read_tests(
@@ -176,7 +192,7 @@ def load_measurements(root: str | Path, progress: Callable[[int, int], None] | N
     kin = ArmKinematics(robot, setup.block_in_flange)
     out = []
     for i, record in enumerate(records):
-        out.append(measure_test(record, setup, kin))
+        out.append(measure_test(record, setup, kin, edges))
         if progress:
             progress(i + 1, len(records))
     return setup, out

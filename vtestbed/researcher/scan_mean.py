@@ -189,7 +189,7 @@ def load_with_floor(
     loaded repeats that pass the creep check at ``creep_alpha``) with the floor for it
     (:func:`against_scan_mean`).
     """
-    setup, measurements = load_measurements(root)
+    setup, measurements = load_measurements(root, edges=True)  # the scale check's (block_size)
     frames = repeat_scan_frames(root, measurements)
     floor = require_floor(dataset_floor(root, frames), root)
     loaded = loaded_scan_frames(root, measurements)

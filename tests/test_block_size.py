@@ -1,0 +1,142 @@
+"""The block's size as a scale reference (researcher/block_size.py): the edge estimator against the
+closed form of uniformly sampled faces, the world's scanner scale through MuJoCo's ray cast, and
+the check's t-test against scipy's one-sample t-test."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from vtestbed.errors import OutOfRangeError
+from vtestbed.experiment import simulate
+from vtestbed.researcher import block_size
+from vtestbed.researcher.discrepancy import diagnose
+from vtestbed.researcher.measure import load_measurements
+from vtestbed.scenario import load_scenario
+from vtestbed.transforms import homogeneous, matrix_from_rotation_vector
+
+ROOT = Path(__file__).resolve().parents[1]
+EDGE = 0.08
+
+
+def _faces(n_per_face: int, rng: np.random.Generator, edge: float = EDGE) -> np.ndarray:
+    """Points drawn uniformly on the three faces x = 0, y = 0, z = 0 of the cube [-edge, 0]^3 (B)."""
+    out = []
+    for k in range(3):
+        pts = -edge * rng.random((n_per_face, 3))
+        pts[:, k] = 0.0
+        out.append(pts)
+    return np.concatenate(out)
+
+
+def test_edges_of_uniformly_sampled_faces_match_the_closed_form(rng):
+    """On uniform samples the estimate is unbiased. It is the fixed point of ``end = b / 2 -
+    mean(band(end))``, and the band's mean moves half as fast as its bound, so the fixed point
+    doubles the mean's noise: std ``2 b / sqrt(12 n)`` for the n = N b / e points of the band
+    (the closed form of a uniform density's mean)."""
+    pose = homogeneous(matrix_from_rotation_vector([0.3, -0.5, 0.2]), [0.1, -0.2, 0.6])
+    n_face, draws = 40_000, 150
+    errors = []
+    for _ in range(draws):
+        local = _faces(n_face, rng)
+        points = local @ pose[:3, :3].T + pose[:3, 3]
+        errors.append(block_size.apparent_edges(points, pose, EDGE) - EDGE)
+    errors = np.array(errors)  # (draws, 6)
+    band_points = n_face * block_size.EDGE_BAND_M / EDGE
+    expected_std = 2 * block_size.EDGE_BAND_M / np.sqrt(12 * band_points)
+    assert np.all(np.abs(errors.mean(axis=0)) < 4 * expected_std / np.sqrt(draws))
+    assert np.all(np.abs(errors.std(axis=0) / expected_std - 1) < 0.15)
+    # a scaled cloud about the scanner's origin, fitted frame scaled alike: the edges scale
+    scaled = pose.copy()
+    scaled[:3, 3] *= 1.01
+    local = _faces(n_face, rng)
+    points = local @ pose[:3, :3].T + pose[:3, 3]
+    ratio = block_size.apparent_edges(points * 1.01, scaled, EDGE) / EDGE
+    assert np.all(np.abs(ratio - 1.01) < 5 * expected_std / EDGE)
+    # an outlier far beyond an edge does not move it; too few points leave the edge unmeasured
+    with_outlier = np.vstack([points, pose[:3, :3] @ [0.0, -EDGE - 2e-3, -0.04] + pose[:3, 3]])
+    moved = block_size.apparent_edges(with_outlier, pose, EDGE) - block_size.apparent_edges(
+        points, pose, EDGE
+    )
+    assert np.abs(moved).max() < 1e-6
+    few = _faces(block_size.MIN_EDGE_POINTS, rng) @ pose[:3, :3].T + pose[:3, 3]
+    assert np.isnan(block_size.apparent_edges(few, pose, EDGE)).all()
+
+
+def test_the_check_is_scipys_one_sample_t_test_against_the_tolerance(rng):
+    tol = 500.0
+    values = 800.0 + 150.0 * rng.standard_normal(12)  # per-test scales [ppm]
+    edges = [np.full((2, 6), EDGE * (1 + v * 1e-6)) for v in values]
+    check = block_size.scale_check(edges, EDGE, alpha=0.01, tolerance_ppm=tol)
+    ref = stats.ttest_1samp(values, tol, alternative="greater")
+    assert check.scale_ppm == pytest.approx(values.mean(), rel=1e-9)
+    assert check.std_ppm == pytest.approx(stats.sem(values), rel=1e-9)
+    assert check.p_value == pytest.approx(ref.pvalue, rel=1e-9)
+    assert check.beyond == (ref.pvalue < 0.01)
+    lo, hi = stats.t.interval(0.95, len(values) - 1, loc=values.mean(), scale=stats.sem(values))
+    assert check.interval_ppm == pytest.approx((lo, hi), rel=1e-9)
+    # negative scales mirror; a test without edges (None, or all NaN) is left out
+    mirrored = [2 * EDGE - e for e in edges] + [None, np.full((2, 6), np.nan)]
+    neg = block_size.scale_check(mirrored, EDGE, alpha=0.01, tolerance_ppm=tol)
+    assert neg.n_tests == len(values)
+    assert neg.scale_ppm == pytest.approx(-check.scale_ppm) and neg.p_value == pytest.approx(check.p_value)
+    assert block_size.ScaleCheck.from_dict(check.to_dict()) == check
+    assert block_size.scale_check(edges[:2], EDGE, alpha=0.01) is None  # too few tests
+    for bad, match in (
+        ({"alpha": 1.5}, "alpha = 1.5 must be in"),
+        ({"alpha": 0.01, "tolerance_ppm": -1}, r"scale tolerance = -1 ppm must be in \[0, 30000\] ppm"),
+        ({"alpha": 0.01, "tolerance_ppm": float("nan")}, "scale tolerance = nan ppm"),
+    ):
+        with pytest.raises(OutOfRangeError, match=match):
+            block_size.scale_check(edges, EDGE, **bad)
+
+
+def _scaled_scenario(tmp_path, scale_ppm: float):
+    text = (ROOT / "scenarios" / "kr60_paper.toml").read_text()
+    text = re.sub(r"\[scanner\]\n", "[scanner]\nrepeats = 2\n", text, count=1)
+    text += f'\n[[world.effects]]\nname = "scanner_scale"\nscale_ppm = {scale_ppm}\n'
+    path = tmp_path / f"scale{scale_ppm:g}.toml"
+    path.write_text(text)
+    return load_scenario(path)
+
+
+def test_the_worlds_scanner_scale_is_measured_by_the_block_edges(tmp_path):
+    """The world's ``scanner_scale`` (every scanned coordinate times 1 + s, MuJoCo's ray cast, the
+    scanner's noise) against the apparent edges of the same tests with and without it: their
+    difference is s, test by test, to the estimator's scatter."""
+    per_world = {}
+    for scale in (0.0, 4000.0):
+        out = tmp_path / f"ds{scale:g}"
+        simulate(_scaled_scenario(tmp_path, scale), out)
+        _, tests = load_measurements(out, edges=True)
+        per_world[scale] = np.array([t.edge_lengths for t in tests]) / EDGE - 1  # (T, 2, 6)
+        check = block_size.scale_check([t.edge_lengths for t in tests], EDGE, alpha=0.01)
+        assert check.n_tests == len(tests) == 25
+        # the gridded scan's bias (module docstring) is far inside the tolerance; 4000 ppm is not
+        assert check.beyond == (scale > 0)
+        assert abs(check.scale_ppm - scale) < 300.0
+    shift = (per_world[4000.0] - per_world[0.0]).mean(axis=(1, 2)) * 1e6  # per test [ppm]
+    assert abs(np.median(shift) - 4000.0) < 100.0
+
+
+def test_diagnose_reports_the_scale_check(hidden_diagnosis_for_scale):
+    report, folder = hidden_diagnosis_for_scale
+    check = report["scale_check"]
+    assert check["n_tests"] == 25 and not check["beyond"]
+    assert abs(check["scale_ppm"]) < block_size.SCALE_TOLERANCE_PPM / 2
+    assert f"{check['scale_ppm']:+.0f} ppm" in (folder / "report.md").read_text()
+
+
+@pytest.fixture(scope="module")
+def hidden_diagnosis_for_scale(tmp_path_factory):
+    """``diagnose`` of a clean paper dataset with 2 repeats: (report, its folder)."""
+    base = tmp_path_factory.mktemp("scale_check")
+    text = (ROOT / "scenarios" / "kr60_paper.toml").read_text()
+    path = base / "clean.toml"
+    path.write_text(re.sub(r"\[scanner\]\n", "[scanner]\nrepeats = 2\n", text, count=1))
+    simulate(load_scenario(path), base / "dataset")
+    return diagnose(base / "dataset", out=base / "diag", names=()), base / "diag"
