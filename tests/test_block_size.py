@@ -34,10 +34,10 @@ def _faces(n_per_face: int, rng: np.random.Generator, edge: float = EDGE) -> np.
 
 
 def test_edges_of_uniformly_sampled_faces_match_the_closed_form(rng):
-    """On uniform samples the estimate is unbiased. It is the fixed point of ``end = b / 2 -
-    mean(band(end))``, and the band's mean moves half as fast as its bound, so the fixed point
-    doubles the mean's noise: std ``2 b / sqrt(12 n)`` for the n = N b / e points of the band
-    (the closed form of a uniform density's mean)."""
+    """On uniform samples the estimate is unbiased: the band from the edge ``-L`` to ``-e + b`` has
+    the mean ``(-L - e + b) / 2``, so ``L = b - e - 2 mean``, and its std is twice the mean's, ``2 b /
+    sqrt(12 n)`` for the n = N b / e points of the band (the closed form of a uniform density's
+    mean)."""
     pose = homogeneous(matrix_from_rotation_vector([0.3, -0.5, 0.2]), [0.1, -0.2, 0.6])
     n_face, draws = 40_000, 150
     errors = []
@@ -63,6 +63,14 @@ def test_edges_of_uniformly_sampled_faces_match_the_closed_form(rng):
         points, pose, EDGE
     )
     assert np.abs(moved).max() < 1e-6
+    # clutter in a face's plane but off the block (a mount below it) stays out of the bands
+    clutter = np.column_stack(
+        [np.zeros(500), -EDGE * rng.random(500), -1.3 * EDGE + 0.1 * EDGE * rng.random(500)]
+    )
+    cluttered = np.vstack([points, clutter @ pose[:3, :3].T + pose[:3, 3]])
+    np.testing.assert_array_equal(
+        block_size.apparent_edges(cluttered, pose, EDGE), block_size.apparent_edges(points, pose, EDGE)
+    )
     few = _faces(block_size.MIN_EDGE_POINTS, rng) @ pose[:3, :3].T + pose[:3, 3]
     assert np.isnan(block_size.apparent_edges(few, pose, EDGE)).all()
 
@@ -86,6 +94,17 @@ def test_the_check_is_scipys_one_sample_t_test_against_the_tolerance(rng):
     assert neg.scale_ppm == pytest.approx(-check.scale_ppm) and neg.p_value == pytest.approx(check.p_value)
     assert block_size.ScaleCheck.from_dict(check.to_dict()) == check
     assert block_size.scale_check(edges[:2], EDGE, alpha=0.01) is None  # too few tests
+    # a scan with an unmeasured edge is left out, not averaged over the edges it has
+    partial = [np.vstack([e, np.r_[np.nan, np.full(5, 2 * EDGE)]]) for e in edges]
+    assert block_size.scale_check(partial, EDGE, alpha=0.01, tolerance_ppm=tol) == check
+    # what the report says: beyond; within (and the bound); neither, when the tests scatter
+    assert "beyond the tolerance (p = " in check.sentence()
+    within = block_size.scale_check(edges, EDGE, alpha=0.01, tolerance_ppm=2000.0)
+    bound = max(abs(v) for v in within.interval_ppm) + 2000.0
+    assert f"within it; with it, a scale error larger than {bound:.0f} ppm is ruled out" in within.sentence()
+    spread = [np.full((1, 6), EDGE * (1 + v * 1e-6)) for v in (3000.0, 200.0, 1300.0)]
+    unsure = block_size.scale_check(spread, EDGE, alpha=0.01, tolerance_ppm=tol)
+    assert not unsure.beyond and "nor within it" in unsure.sentence()
     for bad, match in (
         ({"alpha": 1.5}, "alpha = 1.5 must be in"),
         ({"alpha": 0.01, "tolerance_ppm": -1}, r"scale tolerance = -1 ppm must be in \[0, 30000\] ppm"),
@@ -95,11 +114,17 @@ def test_the_check_is_scipys_one_sample_t_test_against_the_tolerance(rng):
             block_size.scale_check(edges, EDGE, **bad)
 
 
-def _scaled_scenario(tmp_path, scale_ppm: float):
-    text = (ROOT / "scenarios" / "kr60_paper.toml").read_text()
-    text = re.sub(r"\[scanner\]\n", "[scanner]\nrepeats = 2\n", text, count=1)
-    text += f'\n[[world.effects]]\nname = "scanner_scale"\nscale_ppm = {scale_ppm}\n'
-    path = tmp_path / f"scale{scale_ppm:g}.toml"
+def _paper_with_repeats(folder: Path, scale_ppm: float | None = None):
+    """The paper's scenario with 2 repeat scans, the world's ``scanner_scale`` at ``scale_ppm``."""
+    text = re.sub(
+        r"\[scanner\]\n",
+        "[scanner]\nrepeats = 2\n",
+        (ROOT / "scenarios" / "kr60_paper.toml").read_text(),
+        count=1,
+    )
+    if scale_ppm is not None:
+        text += f'\n[[world.effects]]\nname = "scanner_scale"\nscale_ppm = {scale_ppm}\n'
+    path = folder / f"scale{scale_ppm}.toml"
     path.write_text(text)
     return load_scenario(path)
 
@@ -111,7 +136,7 @@ def test_the_worlds_scanner_scale_is_measured_by_the_block_edges(tmp_path):
     per_world = {}
     for scale in (0.0, 4000.0):
         out = tmp_path / f"ds{scale:g}"
-        simulate(_scaled_scenario(tmp_path, scale), out)
+        simulate(_paper_with_repeats(tmp_path, scale), out)
         _, tests = load_measurements(out, edges=True)
         per_world[scale] = np.array([t.edge_lengths for t in tests]) / EDGE - 1  # (T, 2, 6)
         check = block_size.scale_check([t.edge_lengths for t in tests], EDGE, alpha=0.01)
@@ -123,8 +148,8 @@ def test_the_worlds_scanner_scale_is_measured_by_the_block_edges(tmp_path):
     assert abs(np.median(shift) - 4000.0) < 100.0
 
 
-def test_diagnose_reports_the_scale_check(hidden_diagnosis_for_scale):
-    report, folder = hidden_diagnosis_for_scale
+def test_diagnose_reports_the_scale_check(clean_diagnosis):
+    report, folder = clean_diagnosis
     check = report["scale_check"]
     assert check["n_tests"] == 25 and not check["beyond"]
     assert abs(check["scale_ppm"]) < block_size.SCALE_TOLERANCE_PPM / 2
@@ -132,11 +157,8 @@ def test_diagnose_reports_the_scale_check(hidden_diagnosis_for_scale):
 
 
 @pytest.fixture(scope="module")
-def hidden_diagnosis_for_scale(tmp_path_factory):
-    """``diagnose`` of a clean paper dataset with 2 repeats: (report, its folder)."""
+def clean_diagnosis(tmp_path_factory):
+    """``diagnose`` (the detection alone) of a clean paper dataset with 2 repeats: (report, its folder)."""
     base = tmp_path_factory.mktemp("scale_check")
-    text = (ROOT / "scenarios" / "kr60_paper.toml").read_text()
-    path = base / "clean.toml"
-    path.write_text(re.sub(r"\[scanner\]\n", "[scanner]\nrepeats = 2\n", text, count=1))
-    simulate(load_scenario(path), base / "dataset")
+    simulate(_paper_with_repeats(base), base / "dataset")
     return diagnose(base / "dataset", out=base / "diag", names=()), base / "diag"

@@ -85,11 +85,10 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
         base = {"base_terms": [term for term in rnd["base"] if term not in dropped], "round": k}
         delta = rnd.get("delta", rnd.get("delta_bic"))  # reports before 2026-11-26: the BIC lead
         if chosen and delta is not None and delta < CONFUSABLE_MARGIN:
-            # the runner-up's best stand-in other than the chosen term takes the third place: the
+            # the runner-up's best stand-in not ranked before it takes the place after it: the
             # runner-up may be the effect, and the round must not leave it undecided against a
-            # candidate that reproduces most of its pattern
-            # (a plausible candidate below the level may rank between it and the chosen term: the
-            # place then follows the runner-up, while there is room for it among the rivals)
+            # candidate that reproduces most of its pattern (a plausible candidate below the level
+            # may rank between it and the chosen term: the place follows it while there is room)
             runner = rnd.get("runner_up")
             ahead = close.index(runner) + 1 if runner in close[1 : MAX_RIVALS - 1] else 0
             alike = _stand_ins(rnd, runner, dropped) if ahead else []

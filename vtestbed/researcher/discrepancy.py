@@ -308,6 +308,8 @@ def markdown(report: dict, joint_names) -> str:
                      + ": it may stand for one of them (`vtestbed discover --always` tests them against each other)")  # fmt: skip
     if report.get("scale_check"):  # reports before 2026-11-29 have none
         lines += ["", "**Scale.** " + ScaleCheck.from_dict(report["scale_check"]).sentence()]
+    elif "scale_check" in report:
+        lines += ["", f"**Scale.** {block_size.NOT_CHECKED}"]
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(
