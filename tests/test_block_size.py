@@ -14,7 +14,7 @@ from scipy import stats
 from vtestbed.errors import OutOfRangeError
 from vtestbed.experiment import simulate
 from vtestbed.researcher import block_size
-from vtestbed.researcher.discrepancy import diagnose
+from vtestbed.researcher.discrepancy import diagnose, markdown
 from vtestbed.researcher.measure import load_measurements
 from vtestbed.scenario import load_scenario
 from vtestbed.transforms import homogeneous, matrix_from_rotation_vector
@@ -154,6 +154,11 @@ def test_diagnose_reports_the_scale_check(clean_diagnosis):
     assert check["n_tests"] == 25 and not check["beyond"]
     assert abs(check["scale_ppm"]) < block_size.SCALE_TOLERANCE_PPM / 2
     assert f"{check['scale_ppm']:+.0f} ppm" in (folder / "report.md").read_text()
+    # not checked (a mesh target, too few tests) is said; a report from before the check says nothing
+    names = [f"joint{i}" for i in range(1, 7)]
+    assert block_size.NOT_CHECKED in markdown(report | {"scale_check": None}, names)
+    older = {key: value for key, value in report.items() if key != "scale_check"}
+    assert "**Scale.**" not in markdown(older, names) and "**Scale.**" in markdown(report, names)
 
 
 @pytest.fixture(scope="module")
