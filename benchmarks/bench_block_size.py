@@ -22,7 +22,7 @@ are deleted after use.
 from __future__ import annotations
 
 import argparse
-import copy
+import dataclasses
 import json
 import multiprocessing
 import shutil
@@ -31,13 +31,11 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from _discrepancy_worlds import scaled  # benchmarks/ is on sys.path when run as a script
+from bench_discriminate import scenario_for as discriminate_scenario  # benchmarks/ is on sys.path
 
 from vtestbed.experiment import simulate
 from vtestbed.researcher.block_size import SCALE_TOLERANCE_PPM, scale_check
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.scenario import parse_scenario, read_scenario_file
-from vtestbed.world.effects import EFFECTS
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "kr60_confusable.toml"
@@ -45,22 +43,15 @@ ALPHA = 0.01
 
 
 def scenario_for(world: str, seed: int):
-    """The scenario with ``world`` hidden (see the module docstring) and ``seed``; no repeat scans."""
-    raw = copy.deepcopy(read_scenario_file(SCENARIO)) | {"seed": seed}
-    raw.get("scanner", {}).pop("repeats", None)
-    raw.pop("world", None)
-    if world != "clean":
-        name, size = world.split(":")
-        if name == "scale":
-            effect = {"name": "scanner_scale", "scale_ppm": float(size)}
-        else:
-            sized = scaled(EFFECTS[name](), float(size))
-            effect = {"name": name} | {
-                p.name: (list(v) if isinstance(v := getattr(sized, p.name), tuple) else v)
-                for p in sized.PARAMS
-            }
-        raw["world"] = {"effects": [effect]}
-    return parse_scenario(raw, SCENARIO)
+    """The scenario with ``world`` hidden (see the module docstring) and ``seed``; no repeat scans.
+    ``scale:PPM`` is ``scanner_scale`` at PPM / 100 times its realistic 100 ppm."""
+    name, _, size = world.partition(":")
+    if world == "clean":
+        sc = discriminate_scenario(str(SCENARIO), seed, 0)
+    else:
+        effect, factor = ("scanner_scale", float(size) / 100.0) if name == "scale" else (name, float(size))
+        sc = discriminate_scenario(str(SCENARIO), seed, factor, (effect,))
+    return dataclasses.replace(sc, scanner=dataclasses.replace(sc.scanner, repeats=0))
 
 
 def true_scale_ppm(world: str) -> float:

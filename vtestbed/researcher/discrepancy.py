@@ -75,7 +75,7 @@ def diagnose(
         require_names(names, "--candidates")
     require_outside(statics, names, "--candidates")
     # displacements against the mean unloaded scan; loaded repeats left out if the creep check fails at alpha
-    setup, measurements, floor = load_with_floor(root, alpha)
+    setup, measurements, floor = load_with_floor(root, alpha, edges=True)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]

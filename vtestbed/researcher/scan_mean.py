@@ -179,7 +179,7 @@ def loaded_scan_frames(
 
 
 def load_with_floor(
-    root: str | Path, creep_alpha: float | None = CREEP_ALPHA
+    root: str | Path, creep_alpha: float | None = CREEP_ALPHA, edges: bool = False
 ) -> tuple[DatasetSetup, list[TestMeasurement], NoiseFloor]:
     """A dataset as the discrepancy workflow measures it: (setup, measurements, floor).
 
@@ -187,9 +187,10 @@ def load_with_floor(
     (required: :func:`.diagnose.require_floor` says how to record them), and every displacement
     against its test's mean unloaded frame (to its mean loaded frame when the dataset has
     loaded repeats that pass the creep check at ``creep_alpha``) with the floor for it
-    (:func:`against_scan_mean`).
+    (:func:`against_scan_mean`). ``edges``: with each test's apparent block edges (the scale check's,
+    :mod:`.block_size`).
     """
-    setup, measurements = load_measurements(root, edges=True)  # the scale check's (block_size)
+    setup, measurements = load_measurements(root, edges=edges)
     frames = repeat_scan_frames(root, measurements)
     floor = require_floor(dataset_floor(root, frames), root)
     loaded = loaded_scan_frames(root, measurements)
