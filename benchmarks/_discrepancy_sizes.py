@@ -143,6 +143,16 @@ def calibrate(
             "power_realistic": estimated_floor_power(s1), "power_at_limit": estimated_floor_power(records[best[0]])}  # fmt: skip
 
 
+def given_size(name: str, factor: float, power: float) -> dict:
+    """A near-limit size given on the command line (``--limit-factor``), for an effect that another
+    test than its naming test detects first (the scanner's scale: the block's size); ``power`` is
+    what the caller measured there, not a noncentrality's."""
+    nan = float("nan")
+    return {"name": name, "factor": factor, "given": True, "power": power, "power_at_limit": None,
+            "power_realistic": None, "test": "given (--limit-factor)", "df": "-", "label": None,
+            "lambda_realistic": nan, "lambda_at_limit": nan, "target": nan, "capped": False}  # fmt: skip
+
+
 def candidate_overlap(ref_floor: NoiseFloor, statics: str) -> dict:
     """Per candidate: R^2 of its whitened columns on the stiffness columns (the 'absorbed' statistic),
     and per pair: the largest canonical correlation of their columns once the stiffness columns are

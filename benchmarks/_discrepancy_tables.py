@@ -56,6 +56,10 @@ def theory_power(cal: dict, name: str | None, size: str) -> str:
     c = cal.get(name)
     if c is None:
         return "-"
+    if c.get("given") and size == "limit":  # --limit-factor: sized by another test
+        return "given"
+    if c.get("given"):
+        return "-"
     calibrated = c.get("power_realistic" if size == "realistic" else "power_at_limit")
     if calibrated is not None:  # against the estimated floor, as the trials test
         return f"{calibrated * 100:.0f} %"
@@ -222,7 +226,8 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
             continue
         acc = summary[world_key(name, size)]["accuracy"]
         flag = "met" if acc >= NEAR_LIMIT_TARGET else "MISSED"
-        print(f"- {name} near its detection limit (x{factor:.3g}, {c['power'] * 100:.0f} % power in theory): "
+        how = "given, --limit-factor" if c.get("given") else f"{c['power'] * 100:.0f} % power in theory"
+        print(f"- {name} near its detection limit (x{factor:.3g}, {how}): "
               f"{acc * 100:.0f} % correct, target >= {NEAR_LIMIT_TARGET * 100:.0f} %: {flag}")  # fmt: skip
 
     if cal:
@@ -233,6 +238,9 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         )
         print("| --- | --- | ---: | ---: | ---: | ---: | --- |")
         for c in cal.values():
+            if c.get("given"):
+                print(f"| {c['name']} | {c['test']} | - | - | {c['factor']:.3g} | - | - |")
+                continue
             cap = ""
             if c["capped"]:
                 bound = "scans fail" if math.isfinite(c["f_fail"]) else "parameter range"

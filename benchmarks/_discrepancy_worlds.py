@@ -26,6 +26,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
+from vtestbed.researcher.block_size import scale_check  # noqa: E402
 from vtestbed.researcher.candidates import ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import (  # noqa: E402
     DEFAULT_RANK,
@@ -35,6 +36,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     validation_gap,
 )
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
+from vtestbed.researcher.scale_term import corrected, named_labels, settle_scale, settled_pool  # noqa: E402
 from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
@@ -162,7 +164,8 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     """One dataset's worth of noise (seed ``seed``) through the researcher's workflow."""
     scenario = prepared.scenario
     t0 = time.perf_counter()
-    ms = measure_trial(prepared, seed, list(prepared.tests))  # test_rng + draw_readings per test
+    # test_rng + draw_readings per test; with the block's edges for the scale check, as diagnose
+    ms = measure_trial(prepared, seed, list(prepared.tests), edges=True)
     t1 = time.perf_counter()
     noise = scenario.scanner.noise_model
     frames = repeat_frames(prepared, seed, list(prepared.tests), ms, noise, REPEATS)
@@ -180,15 +183,21 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     ctx, ctx_val = model_context(ident, prepared, statics), model_context(valid, prepared, statics)
     white = Whitener(floor)
     base = fit_model(ctx, white, [])
-    chosen, steps, final = name_effects(ctx, white, pool, alpha=ALPHA, rank_by=RANK)
+    # as diagnose: the scale measured or ruled out by the block's size where its check decides
+    check = scale_check([m.edge_lengths for m in ms], prepared.setup.block_edge, ALPHA)
+    term = settle_scale(check, pool)
+    fixed, fixed_val = (model_context(corrected(g, term), prepared, statics) for g in (ident, valid))
+    chosen, steps, final = name_effects(fixed, white, settled_pool(term, pool), alpha=ALPHA, rank_by=RANK)
     before = validation_gap(ctx_val, white, base, [])["ratio_to_floor"]
-    gap_after = validation_gap(ctx_val, white, final, chosen)
+    gap_after = validation_gap(fixed_val, white, final, chosen)
     after = gap_after["ratio_to_floor"]
     t3 = time.perf_counter()
     return {
         "seed": seed,
-        "named": [c.label for c in chosen],
-        "names": [c.name for c in chosen],
+        "named": named_labels([c.label for c in chosen], term),
+        "names": named_labels([c.name for c in chosen], term),
+        "scale_check": check and check.to_dict(),
+        "scale_term": term and term.to_dict(),
         "dropped": [d["label"] for s in steps for d in s.dropped],  # named, then stood in for later terms
         "chi2": base.chi2,
         "dof": base.dof,

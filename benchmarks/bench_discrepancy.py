@@ -69,7 +69,7 @@ from pathlib import Path
 
 import _discrepancy_worlds  # before numpy: it sets the BLAS threads to 1 (in every spawned worker too)
 import numpy as np
-from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap
+from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap, given_size
 from _discrepancy_tables import clopper_pearson, report
 from _discrepancy_worlds import (  # the names bench_discriminate / bench_two_effects use
     ALPHA,
@@ -114,6 +114,10 @@ def main() -> None:
     parser.add_argument(
         "--limit-only", action="store_true", help="only the near-limit worlds (no clean, no x1)"
     )
+    parser.add_argument("--limit-factor", action="append", default=[], metavar="NAME=F",
+                        help="size NAME's near-limit world at F instead of by its naming test's power: an "
+                             "effect another test detects first (scanner_scale: the block's size, "
+                             "benchmarks/bench_block_size.py); repeatable")  # fmt: skip
     parser.add_argument(
         "--scenario",
         type=Path,
@@ -138,6 +142,15 @@ def main() -> None:
         parser.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
     seeds = 2 if args.quick else args.seeds
     max_evals = 3 if args.quick else 6
+    given = {}
+    for item in args.limit_factor:
+        name, _, value = item.partition("=")
+        if name not in names:
+            parser.error(f"--limit-factor {item!r}: {name!r} is not among --effects ({', '.join(names)})")
+        try:
+            given[name] = float(value)
+        except ValueError:
+            parser.error(f"--limit-factor {item!r}: F must be a number")
 
     t0 = time.perf_counter()
     ctx = multiprocessing.get_context("spawn")
@@ -151,7 +164,10 @@ def main() -> None:
                 calibrate, n, ref_floor, max_evals, args.statics, args.limit_power, args.known_floor
             ): n
             for n in names
+            if n not in given
         }
+        for n, f in given.items():  # sized by another test: no noncentrality to report
+            cal_futures[pool.submit(given_size, n, f, args.limit_power)] = n
         overlap_future = pool.submit(candidate_overlap, ref_floor, args.statics)
         worlds = [] if args.limit_only else [(None, "clean", 1.0)] + [(n, "realistic", 1.0) for n in names]
         pending, results, t_prep = {}, {}, 0.0

@@ -62,7 +62,7 @@ def diagnosis_folder(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("report_diagnosis")
     dataset = root / "dataset"
     simulate(parse_scenario(hidden_link_scenario(), "hidden.toml"), dataset)
-    names = ("link_compliance", "joint_coupling")
+    names = ("link_compliance", "joint_coupling", "scanner_scale")  # the scale: settled by the block
     diagnose(dataset, names=names, out=dataset / "diagnose")
     return dataset / "diagnose"
 

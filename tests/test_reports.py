@@ -144,6 +144,12 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
         f"at {scale['scale_ppm']:+.0f} ppm (95 % interval {lo:+.0f} to {hi:+.0f} ppm"
         in pages["diagnosis"].read_text()
     )
+    # ... and within the tolerance it rules the scale out of the candidates, beyond the interval's
+    # far end plus the tolerance (researcher/scale_term.py)
+    assert report["scale_term"]["action"] == "ruled_out" and "scanner_scale" not in by_label
+    bound = max(abs(lo), abs(hi)) + scale["tolerance_ppm"]
+    assert f"larger than {bound:.0f} ppm is ruled out" in pages["diagnosis"].read_text()
+    assert f"not name a scale below {bound:.0f} ppm" in pages["diagnosis"].read_text()
     assert "fig-gap" in t.ids and "fig-effect" in t.ids and "scene-3d" in t.ids
 
 

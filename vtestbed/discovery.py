@@ -44,6 +44,7 @@ from .discovery_markdown import markdown
 from .errors import DatasetError, OutOfRangeError, VtestbedError
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
+from .researcher.block_size import scale_check
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .researcher.diagnose import (
     DEFAULT_ALPHA,
@@ -55,6 +56,7 @@ from .researcher.diagnose import (
 )
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
+from .researcher.scale_term import corrected, settle_scale
 from .researcher.scan_mean import load_with_floor
 from .researcher.statics import ExactStatics
 from .run_record import versions
@@ -161,14 +163,20 @@ class LabCheck:
 
 def _researcher_view(root: Path, alpha: float):
     """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms,
-    measured as ``diagnose`` at ``alpha`` measures them."""
+    measured as ``diagnose`` at ``alpha`` measures them (the translations corrected where the
+    block's size measures the scale, :mod:`.researcher.scale_term`). The pool holds every
+    candidate, a scale the block settled on this dataset too: an earlier round's rivals, read
+    from its report, may hold it where the block could not tell before the round's tests."""
     from .robots import load_robot
 
     # as diagnose measures: against the mean unloaded scan, the creep check at the same alpha
-    setup, ms, floor = load_with_floor(root, alpha)
+    setup, ms, floor = load_with_floor(root, alpha, edges=True)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    check = scale_check([m.edge_lengths for m in ms], setup.block_edge, alpha)
+    term = settle_scale(check, candidates(kin, CANDIDATE_NAMES))
+    ident = corrected([m for m in ms if m.group == "identification"], term)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
-    ctx = ModelContext([m for m in ms if m.group == "identification"], setup, kin, ExactStatics(kin, setup))
+    ctx = ModelContext(ident, setup, kin, ExactStatics(kin, setup))
     white = Whitener(floor)
     return ctx, white, researcher_pool(ctx, white)
 

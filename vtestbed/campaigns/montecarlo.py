@@ -158,10 +158,12 @@ def measure_trial(
     tests: list[PreparedTest] | None = None,
     noise: ScanNoise | None | str = "scenario",
     sensor: ForceTorqueSensor | None = None,
+    edges: bool = False,
 ) -> list[TestMeasurement]:
     """Draw one trial's noise (seed ``seed``) and reduce each test as the researcher would.
 
     ``noise="scenario"`` uses the scenario's scanner noise; ``None`` is a perfect scanner.
+    ``edges``: with the block's apparent edges (``measure_arrays``; the scale check's).
     """
     noise = _scan_noise(prepared, noise)
     sensor = sensor or prepared.sensor
@@ -179,7 +181,7 @@ def measure_trial(
             rng,
             prepared.scenario.effects,
         )
-        out.append(measure_arrays(t.record(w0, w1), cloud0, cloud1, prepared.setup, kin))
+        out.append(measure_arrays(t.record(w0, w1), cloud0, cloud1, prepared.setup, kin, edges))
     return out
 
 

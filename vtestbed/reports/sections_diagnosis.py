@@ -9,6 +9,7 @@ from ..researcher.block_size import NOT_CHECKED, ScaleCheck
 from ..researcher.diagnose import confusable_margin, rank_label
 from ..researcher.discrepancy import COMPONENTS, detection_alone, no_candidates_text, stand_ins
 from ..researcher.loaded_scatter import LoadedScatter
+from ..researcher.scale_term import ScaleTerm, named_note
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
 from .loader import ResultFolder
@@ -31,10 +32,13 @@ def noise_floor(folder: ResultFolder) -> Section:
     if scatter := nf.get("loaded_scatter"):  # the loaded repeats' creep check (researcher/loaded_scatter.py)
         check = LoadedScatter.from_dict(scatter)
         blocks.append(Text([check.sentence(r["alpha"])], id="loaded-scatter"))
-    if scale := r.get("scale_check"):  # the block's size as a length standard (researcher/block_size.py)
-        blocks.append(Text([ScaleCheck.from_dict(scale).sentence()], id="scale-check"))
+    # the block's size as a length standard (researcher/block_size.py), and what the naming made of
+    # it (researcher/scale_term.py; older reports have no scale_term)
+    settled = [ScaleTerm.from_dict(t).sentence()] if (t := r.get("scale_term")) else []
+    if scale := r.get("scale_check"):
+        blocks.append(Text([ScaleCheck.from_dict(scale).sentence(), *settled], id="scale-check"))
     elif "scale_check" in r:  # not checked (a mesh target, too few tests); reports before 2026-11-29: no key
-        blocks.append(Text([NOT_CHECKED], id="scale-check"))
+        blocks.append(Text([NOT_CHECKED, *settled], id="scale-check"))
     return Section("noise-floor", "Noise floor", blocks)
 
 
@@ -83,7 +87,11 @@ def candidates(folder: ResultFolder) -> Section:
 def named(folder: ResultFolder) -> Section:
     """The named effects, their parameters with std, and the stiffness before and after."""
     r = folder.data
-    text = [no_candidates_text()] if detection_alone(r) else [f"Named: {', '.join(r['named']) or 'nothing'}."]
+    text = (
+        [no_candidates_text()]
+        if detection_alone(r)
+        else [f"Named: {', '.join(n + named_note(r, n) for n in r['named']) or 'nothing'}."]
+    )
     text += [f"{label}: {note}" for label, note in r["absorbed"].items()]
     text += [f"{label} (dropped): {note}" for label, note in r.get("dropped", {}).items()]  # stepwise search
     text += [

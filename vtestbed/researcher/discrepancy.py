@@ -2,8 +2,9 @@
 
 Reads a dataset (with repeat scans for the noise floor, and validation tests if it has them),
 never the truth. Detects (chi^2 of the paper's model against the noise floor), names the missing
-effects (:func:`.diagnose.name_effects`), adds them, and compares the validation prediction error
-before and after. Writes ``report.json``, ``report.md``, ``gap.png``, ``patterns.png``, ``effect.png`` and ``model.json`` (the named
+effects (:func:`.diagnose.name_effects`; the scanner's scale measured on the block or ruled out
+where its size decides, :mod:`.scale_term`), adds them, and compares the validation prediction
+error before and after. Writes ``report.json``, ``report.md``, ``gap.png``, ``patterns.png``, ``effect.png`` and ``model.json`` (the named
 terms, for ``vtestbed identify --model``) when given a folder.
 Units: SI; stiffness in N*m/rad.
 """
@@ -40,6 +41,15 @@ from .discrepancy_plots import plot_effect, plot_gap, plot_patterns
 from .kinematics import ArmKinematics
 from .loaded_scatter import LoadedScatter
 from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
+from .scale_term import (
+    ScaleTerm,
+    corrected,
+    named_labels,
+    named_note,
+    settle_scale,
+    settled_pool,
+    with_measured,
+)
 from .scan_mean import load_with_floor
 
 
@@ -64,7 +74,8 @@ def diagnose(
     the baseline). ``rank_by``:
     how the significant candidates are ranked (:data:`.diagnose.RANK_CRITERIA`; default the
     leave-one-test-out prediction error). ``scale_tolerance_ppm``: the tolerance of the scale
-    check on the block's declared size (:mod:`.block_size`; report only, it names nothing).
+    check on the block's declared size (:mod:`.block_size`); where it decides, ``scanner_scale``
+    is measured on the block or ruled out instead of tested (:mod:`.scale_term`).
     """
     require_rank(rank_by)  # before any work: the dataset's own errors come after
     block_size.require_tolerance(scale_tolerance_ppm)
@@ -87,19 +98,25 @@ def diagnose(
     exact = baseline_statics(statics, kin, setup)
     ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
     white = Whitener(floor)
-    base = fit_model(ctx, white, [])
-    chosen, steps, final = name_effects(ctx, white, pool, alpha, rank_by=rank_by)
+    base = fit_model(ctx, white, [])  # the paper's model on the data as measured: the detection's
+    scale = block_size.scale_check(
+        [m.edge_lengths for m in measurements], setup.block_edge, alpha, scale_tolerance_ppm
+    )
+    # where the block's size decides the scale, it is measured (the translations corrected) or
+    # ruled out, and the naming tests the other candidates only (scale_term)
+    term = settle_scale(scale, pool)
+    pool = settled_pool(term, pool)
+    fixed = ModelContext(corrected(ident, term), setup, kin, exact)
+    fixed_val = ModelContext(corrected(valid, term), setup, kin, exact)
+    chosen, steps, final = name_effects(fixed, white, pool, alpha, rank_by=rank_by)
     names_chosen = {c.label for c in chosen}
     absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}
     for cand in pool:
         if cand.label not in names_chosen:
-            note = absorbed_by(ctx, white, cand, final.compliance, kin.robot.joint_names)
+            note = absorbed_by(fixed, white, cand, final.compliance, kin.robot.joint_names)
             if note:
                 absorbed[cand.label] = note
     std = floor.component_std
-    scale = block_size.scale_check(
-        [m.edge_lengths for m in measurements], setup.block_edge, alpha, scale_tolerance_ppm
-    )
     report = {
         "dataset": str(root),
         "alpha": alpha,
@@ -110,6 +127,7 @@ def diagnose(
                         "reference_scans": floor.reference_scans, "loaded_scans": floor.loaded_scans,
                         "loaded_scatter": floor.loaded_scatter and floor.loaded_scatter.to_dict()},
         "scale_check": scale and scale.to_dict(),  # None: a mesh target, or fewer than 3 tests
+        "scale_term": term and term.to_dict(),  # None: scanner_scale not among the candidates
         "detect": {
             "chi2": base.chi2, "dof": base.dof, "p_value": base.p_value,
             "normalised_residual_rms": (np.sqrt(np.mean(base.residuals**2, axis=0)) / std).tolist(),
@@ -118,7 +136,7 @@ def diagnose(
             "patterns": residual_patterns(per_test, features),
             "model_rejected": bool(base.p_value < alpha),
         },
-        "named": [c.label for c in chosen],
+        "named": named_labels([c.label for c in chosen], term),
         "absorbed": absorbed,
         "dropped": dropped_notes(steps, names_chosen),
         "confusable": [
@@ -127,10 +145,10 @@ def diagnose(
         ],
         "rounds": round_records(steps),
         "baseline": base.to_dict(),
-        "model": final.to_dict(),
+        "model": with_measured(final.to_dict(), term),
         "validation": {"before": validation_gap(ctx_val, white, base, []),
-                       "after": validation_gap(ctx_val, white, final, chosen)},
-        "effect": _effect(white, base, final, [c.label for c in chosen]),
+                       "after": validation_gap(fixed_val, white, final, chosen)},
+        "effect": _effect(white, base, final, named_labels([c.label for c in chosen], term)),
         "identification_fit": {"before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
                                "after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
                                "per_test_after": _per_test(white, final.residuals),
@@ -294,7 +312,11 @@ def markdown(report: dict, joint_names) -> str:
         f"**Name.** {no_candidates_text('`--candidates none`')}"
         if detection_alone(report)
         else "**Name.** "
-        + (", ".join(f"`{n}`" for n in report["named"]) if report["named"] else "nothing")
+        + (
+            ", ".join(f"`{n}`{named_note(report, n)}" for n in report["named"])
+            if report["named"]
+            else "nothing"
+        )
         + f" (likelihood ratio, Bonferroni at alpha = {report['alpha']:g}, ranked by {rank_label(report)}).",
     ]
     for label, note in {**report["absorbed"], **report.get("dropped", {})}.items():
@@ -310,6 +332,10 @@ def markdown(report: dict, joint_names) -> str:
         lines += ["", "**Scale.** " + ScaleCheck.from_dict(report["scale_check"]).sentence()]
     elif "scale_check" in report:
         lines += ["", f"**Scale.** {block_size.NOT_CHECKED}"]
+    if report.get(
+        "scale_term"
+    ):  # none: an older report (the check a report only), or no scanner_scale candidate
+        lines[-1] += " " + ScaleTerm.from_dict(report["scale_term"]).sentence()
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(

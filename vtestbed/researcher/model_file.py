@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from ..errors import ConvergenceError, DatasetError, OutOfRangeError, UnknownNameError
 from ..robots import load_robot
+from .block_size import scale_check
 from .candidates import (
     CANDIDATE_NAMES,
     CLEAN_WORLD_CANDIDATE_NAMES,
@@ -20,9 +21,10 @@ from .candidates import (
     ModelContext,
     candidates,
 )
-from .diagnose import Whitener, fit_model, identifiable, require_tests, validation_gap
+from .diagnose import DEFAULT_ALPHA, Whitener, fit_model, identifiable, require_tests, validation_gap
 from .kinematics import ArmKinematics
 from .model_fit import scaled_svd
+from .scale_term import SCALE_LABEL, corrected, measured, settled_pool, with_measured
 from .scan_mean import load_with_floor
 from .statics import ExactStatics
 
@@ -104,10 +106,19 @@ def read_model(path, robot, kin) -> tuple[list, str]:
 
 
 def identify_with_model(root, model_path) -> dict:
-    """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans)."""
-    setup, measurements, floor = load_with_floor(root)  # as diagnose measures
+    """Identify the stiffness with the paper's model plus a model file's terms (needs repeat scans).
+
+    A ``scanner_scale`` term is measured on the block wherever the dataset's scans allow the
+    scale check (:mod:`.scale_term`: the translations divided by ``1 + s``, whatever the check's
+    verdict, since the model says the scale is there), and fitted to the displacements otherwise
+    (a mesh target, fewer than 3 tests).
+    """
+    setup, measurements, floor = load_with_floor(root, edges=True)  # as diagnose measures
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     terms, statics = read_model(model_path, setup.robot, kin)
+    check = scale_check([m.edge_lengths for m in measurements], setup.block_edge, DEFAULT_ALPHA)
+    scale = measured(check) if any(t.label == SCALE_LABEL for t in terms) else None
+    terms, measurements = settled_pool(scale, terms), corrected(measurements, scale)
     exact = baseline_statics(statics, kin, setup)
     ident = [m for m in measurements if m.group == "identification"]
     valid = [m for m in measurements if m.group == "validation"]
@@ -125,7 +136,8 @@ def identify_with_model(root, model_path) -> dict:
             f"{len(ident)} identification tests of {root} predicts nothing physical ({exc}); name fewer "
             "terms in the model file or record more tests"
         ) from None
-    return {"model": fit.to_dict(), "joint_names": list(kin.robot.joint_names), "validation": gap}
+    return {"model": with_measured(fit.to_dict(), scale), "joint_names": list(kin.robot.joint_names),
+            "validation": gap}  # fmt: skip
 
 
 # The scaled columns' condition number above which a model's parameters are not determined: every
