@@ -1,7 +1,7 @@
 """The discrepancy workflow's confusion matrix: which hidden effect does it name, and how often?
 
 Run: .venv/bin/python benchmarks/bench_discrepancy.py [--seeds 50] [--workers 2] [--effects a,b] [--quick]
-       [--loaded-repeats 3]
+       [--loaded-repeats 3] [--limit-factor scanner_scale=10.92]
 
 Worlds: ``scenarios/kr60_paper.toml`` (20 identification tests at 200 N, the 5 Table 6
 validation tests) clean, and with each effect of ``vtestbed.world.effects.EFFECTS`` hidden alone
@@ -21,7 +21,10 @@ against its test's mean unloaded scan, as ``load_with_floor`` measures a dataset
 :func:`vtestbed.researcher.discrepancy.diagnose` does by default: ``name_effects(ModelContext(...,
 ExactStatics(kin, setup)), Whitener(floor), candidates(kin), alpha=0.01)`` (stepwise: forward,
 and backward after each addition) and ``validation_gap``
-before and after (``--statics paper``: the paper's linear model as the baseline).
+before and after (``--statics paper``: the paper's linear model as the baseline). As ``diagnose``,
+the trial first settles ``scanner_scale`` by the block's size (``block_size.scale_check`` on the
+tests' apparent edges, ``scale_term.settle_scale``: measured and the translations corrected,
+ruled out, or left a candidate); a trial's record keeps the check and what it decided.
 
 Size "near the detection limit": the factor ``f_lim`` on the effect's size (stiffness of a
 compliance divided by f, everything else multiplied by f) at which the first round's
@@ -41,7 +44,10 @@ baseline, df 114, level alpha) is used instead, with the floor known.
 ``lambda`` grows as f^2; f_lim is found by a secant search on log f (at most 6 noise-free
 evaluations, to 20 % in lambda), bounded by the parameter's range and by the largest size whose
 scans the researcher can still reduce (a world the cloud fit refuses is a bound, not a result).
-The power at the f_lim found is printed beside the accuracy.
+The power at the f_lim found is printed beside the accuracy. ``--limit-factor NAME=F`` gives an
+effect's near-limit size instead, for an effect another test detects first: the scanner's scale,
+which the block's size check detects at about x10.92 in 85 % of datasets
+(``bench_block_size.py``), far below its naming test's size.
 
 Scoring: "correct" when the set of named effect names is exactly the hidden effect's (several
 labels of one family count once); for gravity_compensator at its realistic size, below detection

@@ -41,7 +41,7 @@ import numpy as np
 from .dataset import CLOUD_DIR, TRUTH_FILE
 from .design import discriminate as disc
 from .discovery_markdown import markdown
-from .errors import DatasetError, OutOfRangeError, VtestbedError
+from .errors import DatasetError, OutOfRangeError, VtestbedError, require_level
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
 from .researcher.block_size import scale_check
@@ -266,8 +266,7 @@ def discover(
     lo, hi = EXTRA_TESTS_RANGE
     if not (isinstance(extra_tests, (int, np.integer)) and lo <= extra_tests <= hi):
         raise OutOfRangeError(f"extra_tests = {extra_tests!r} is outside the valid range [{lo}, {hi}]")
-    if not 0.0 < alpha < 1.0:
-        raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
+    require_level(alpha)
     if criterion not in disc.CRITERIA:
         from .errors import UnknownNameError
 

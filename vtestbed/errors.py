@@ -93,3 +93,11 @@ def check_range(field: str, value: float, low: float, high: float, unit: str = "
             f"{field} = {value:g}{u} is outside the valid range [{low:g}, {high:g}]{u}{why}"
         )
     return value
+
+
+def require_level(value: float, field: str = "alpha") -> float:
+    """Return ``value`` if it is a significance level, in the open interval (0, 1), else raise
+    :class:`OutOfRangeError` naming ``field`` (NaN is refused too)."""
+    if not 0.0 < value < 1.0:
+        raise OutOfRangeError(f"{field} = {value:g} must be in (0, 1)")
+    return value

@@ -10,7 +10,7 @@ from .args import number, output_dir
 
 
 def _cmd_diagnose(args) -> int:
-    from ..errors import OutOfRangeError
+    from ..errors import OutOfRangeError, require_level
     from ..researcher.discrepancy import diagnose, markdown
     from ..robots import load_robot
 
@@ -20,8 +20,7 @@ def _cmd_diagnose(args) -> int:
             f"--candidates {names!r}: 'none' (the detection test alone) stands alone; give it by itself, or "
             "candidate names without it"
         )
-    if not 0.0 < args.alpha < 1.0:
-        raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
+    require_level(args.alpha, "--alpha")
     rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
     report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics,
                       scale_tolerance_ppm=args.scale_tolerance, **rank)  # fmt: skip

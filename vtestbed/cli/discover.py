@@ -10,11 +10,10 @@ from .args import integer, number, output_dir
 
 def _cmd_discover(args) -> int:
     from ..discovery import discover, markdown
-    from ..errors import OutOfRangeError
+    from ..errors import OutOfRangeError, require_level
     from ..scenario import load_scenario
 
-    if not 0.0 < args.alpha < 1.0:
-        raise OutOfRangeError(f"--alpha = {args.alpha:g} must be in (0, 1)")
+    require_level(args.alpha, "--alpha")
     if args.max_extra_tests is not None and args.max_extra_tests < args.extra_tests:
         raise OutOfRangeError(
             f"--max-extra-tests = {args.max_extra_tests} must be at least --extra-tests = {args.extra_tests}"

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..errors import OutOfRangeError
+from ..errors import OutOfRangeError, require_level
 
 SCALE_TOLERANCE_PPM = 1000.0  # |s| within this is consistent with a sharp block known to 0.08 mm
 SCALE_TOLERANCE_RANGE_PPM = (0.0, 30000.0)  # the band ends 3 mm (37 500 ppm) inside the declared edge
@@ -196,8 +196,7 @@ def scale_check(
     """
     from scipy import stats  # here: the command line imports this module's constants, not scipy
 
-    if not 0.0 < alpha < 1.0:
-        raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
+    require_level(alpha)
     require_tolerance(tolerance_ppm)
     per_test = []
     for test in edges:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import DatasetError, OutOfRangeError, UnknownNameError
+from ..errors import DatasetError, UnknownNameError, require_level
 from .candidates import Candidate, ModelContext
 from .identify import stack
 from .model_fit import ModelFit, Whitener, fit_model, scaled_svd  # the fit the search tests (re-exported)
@@ -275,8 +275,7 @@ def name_effects(
     candidates ranked by ``rank_by`` (:data:`RANK_CRITERIA`), and after each addition backward
     (:func:`_drop_redundant`); returns the chosen terms, the rounds, and the final fit. A set of
     terms reached twice ends the search (no cycling)."""
-    if not 0.0 < alpha < 1.0:
-        raise OutOfRangeError(f"alpha = {alpha:g} must be in (0, 1)")
+    require_level(alpha)
     require_rank(rank_by)
     chosen: list[Candidate] = []
     steps: list[Step] = []
