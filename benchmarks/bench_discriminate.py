@@ -103,11 +103,27 @@ def run_seed(
            "extra_tests": sum(len(k["proposal"]["tests"]) for k in r.get("rounds") or ()),
            "after_round1": (r.get("rounds") or [{}])[0].get("named", r["named_before"]),
            "wall_s": time.perf_counter() - t0}  # fmt: skip
+    row["scale"] = [
+        scale_record(folder / f"round{k}" / "diagnose" / "report.json") for k in range(row["rounds_run"] + 1)
+    ]
     if row["reason"] == "confusable":  # the rivals before the runner-up's stand-in had a place
         row["rivals_without_reserve"] = rivals_without_reserve(folder / "round0" / "diagnose" / "report.json")
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
     return row
+
+
+def scale_record(report_path: Path) -> dict | None:
+    """What a diagnosis's block check measured and decided (``scale_ppm``, ``std_ppm``, ``action``),
+    per round; None without the report or the check."""
+    if not report_path.exists():
+        return None
+    report = json.loads(report_path.read_text())
+    check, term = report.get("scale_check"), report.get("scale_term")
+    if not check:
+        return None
+    return {"scale_ppm": check["scale_ppm"], "std_ppm": check["std_ppm"], "n_tests": check["n_tests"],
+            "action": term and term["action"]}  # fmt: skip
 
 
 def rivals_without_reserve(report_path: Path) -> list[str] | None:

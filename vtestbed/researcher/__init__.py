@@ -12,9 +12,11 @@ The chain: :func:`fit_block_frame` (three planes of the block in a cloud) ->
 workflow: :func:`estimate_noise_floor` (repeat scans), :func:`load_with_floor` (every displacement
 against its test's mean unloaded scan, with the floor for it) and :func:`diagnose` (detect, name, add
 the effects the paper's model misses; candidate terms in :mod:`.candidates`, the clean world's
-exact statics in :mod:`.statics`). Units: SI.
+exact statics in :mod:`.statics`, the scanner's scale from the block's size in :mod:`.block_size`
+and what the naming makes of it in :mod:`.scale_term`). Units: SI.
 """
 
+from .block_size import ScaleCheck, scale_check
 from .candidates import Candidate, candidates
 from .cloud import BlockFrame, FitParams, fit_block_frame
 from .discrepancy import diagnose
@@ -31,6 +33,7 @@ from .measure import (
 )
 from .noise_floor import NoiseFloor, estimate_noise_floor
 from .report import convergence, plot_convergence, plot_validation, validation
+from .scale_term import ScaleTerm, settle_scale
 from .scan_mean import against_scan_mean, load_with_floor
 from .statics import ExactStatics
 
@@ -40,6 +43,8 @@ __all__ = [
     "Candidate",
     "ExactStatics",
     "NoiseFloor",
+    "ScaleCheck",
+    "ScaleTerm",
     "FitParams",
     "IdentificationResult",
     "TestMeasurement",
@@ -61,6 +66,8 @@ __all__ = [
     "plot_convergence",
     "plot_validation",
     "predict_displacement",
+    "scale_check",
+    "settle_scale",
     "validation",
     "wrench_at_block",
 ]

@@ -332,9 +332,8 @@ def markdown(report: dict, joint_names) -> str:
         lines += ["", "**Scale.** " + ScaleCheck.from_dict(report["scale_check"]).sentence()]
     elif "scale_check" in report:
         lines += ["", f"**Scale.** {block_size.NOT_CHECKED}"]
-    if report.get(
-        "scale_term"
-    ):  # none: an older report (the check a report only), or no scanner_scale candidate
+    # what the naming made of the scale (none: no scanner_scale candidate, or an older report)
+    if report.get("scale_term"):
         lines[-1] += " " + ScaleTerm.from_dict(report["scale_term"]).sentence()
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
