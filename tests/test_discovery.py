@@ -25,7 +25,7 @@ import pytest
 
 from vtestbed.design import discriminate as disc
 from vtestbed.discovery import _researcher_view, discover, markdown
-from vtestbed.errors import ScenarioError, UnknownNameError
+from vtestbed.errors import OutOfRangeError, ScenarioError, UnknownNameError
 from vtestbed.experiment import simulate
 from vtestbed.files import read_toml
 from vtestbed.researcher.diagnose import DEFAULT_ALPHA, RANK_CRITERIA
@@ -62,7 +62,7 @@ def _rows(path: Path) -> dict:
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("discover")
     scenario = load_scenario(_small_scenario(tmp))
-    result = discover(scenario, tmp / "out", extra_tests=EXTRA, n_poses=40)
+    result = discover(scenario, tmp / "out", extra_tests=EXTRA, n_poses=40, scale_tolerance_ppm=800.0)
     return scenario, result, tmp / "out"
 
 
@@ -96,6 +96,10 @@ def test_discover_proposes_and_reruns_in_the_same_world(run, tmp_path):
     assert result["rivals"] == {"reason": "marginal", "base_terms": [], "round": 0,
                                 "rivals": ["baseline", "joint_coupling(2,3)", *stand_ins][: disc.MAX_RIVALS]}  # fmt: skip
     assert result["named_after"] == ["joint_coupling(2,3)"]
+    # every diagnosis checks the scale on the block against the tolerance asked for
+    for k in (0, 1):
+        report = json.loads((out / f"round{k}" / "diagnose" / "report.json").read_text())
+        assert report["scale_check"]["tolerance_ppm"] == 800.0
     # the diagnosis after the round spends half of alpha (an adaptive design): Bonferroni over its
     # candidates at alpha / 2, the first diagnosis's at alpha
     reports = [json.loads((out / r / "diagnose" / "report.json").read_text()) for r in ("round0", "round1")]
@@ -298,6 +302,9 @@ def test_an_unknown_ranking_is_refused_before_anything_is_simulated(tmp_path):
         discover(load_scenario(_small_scenario(tmp_path)), tmp_path / "out", rank_by="aic")
     assert "'aic'" in str(exc.value) and all(name in str(exc.value) for name in RANK_CRITERIA)
     assert not (tmp_path / "out").exists()  # refused before round 0's simulation
+    with pytest.raises(OutOfRangeError, match=r"scale tolerance = 40000 ppm must be in \[0, 30000\] ppm"):
+        discover(load_scenario(_small_scenario(tmp_path)), tmp_path / "out", scale_tolerance_ppm=40000.0)
+    assert not (tmp_path / "out").exists()
 
 
 def test_cli_choices_match_the_library():
@@ -318,6 +325,8 @@ def test_cli_choices_match_the_library():
     assert opts["n_poses"].default == inspect.signature(discover).parameters["n_poses"].default
     assert opts["rounds"].default == inspect.signature(discover).parameters["rounds"].default
     assert opts["separation"].const == disc.SEPARATION_TARGET and opts["separation"].default is None
+    tolerance = inspect.signature(discover).parameters["scale_tolerance_ppm"].default
+    assert opts["scale_tolerance"].default == tolerance == 1000.0  # block_size.SCALE_TOLERANCE_PPM
 
 
 def test_the_discovery_page_shows_the_loop(run, tmp_path):

@@ -173,6 +173,9 @@ CASES = {
     "discover-extra-tests-zero": command(
         "discover", "{tmp}/s.toml", "--out", "{tmp}/o", "--extra-tests", "0"
     ),
+    "discover-scale-tolerance-too-large": command(
+        "discover", "{tmp}/s.toml", "--out", "{tmp}/o", "--scale-tolerance", "40000"
+    ),
     "scheduler-not-a-url": _scheduler,
     "closed-pipe": _closed_pipe,
     "disk-full": _disk_full,

@@ -44,7 +44,7 @@ from .discovery_markdown import markdown
 from .errors import DatasetError, OutOfRangeError, VtestbedError, require_level
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
-from .researcher.block_size import scale_check
+from .researcher.block_size import SCALE_TOLERANCE_PPM, require_tolerance, scale_check
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .researcher.diagnose import (
     DEFAULT_ALPHA,
@@ -161,7 +161,7 @@ class LabCheck:
         return self.refused[key] is None
 
 
-def _researcher_view(root: Path, alpha: float):
+def _researcher_view(root: Path, alpha: float, scale_tolerance_ppm: float = SCALE_TOLERANCE_PPM):
     """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms,
     measured as ``diagnose`` at ``alpha`` measures them (the translations corrected where the
     block's size measures the scale, :mod:`.researcher.scale_term`). The pool holds every
@@ -172,7 +172,7 @@ def _researcher_view(root: Path, alpha: float):
     # as diagnose measures: against the mean unloaded scan, the creep check at the same alpha
     setup, ms, floor = load_with_floor(root, alpha, edges=True)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
-    check = scale_check([m.edge_lengths for m in ms], setup.block_edge, alpha)
+    check = scale_check([m.edge_lengths for m in ms], setup.block_edge, alpha, scale_tolerance_ppm)
     term = settle_scale(check, candidates(kin, CANDIDATE_NAMES))
     ident = corrected([m for m in ms if m.group == "identification"], term)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
@@ -214,6 +214,7 @@ def discover(
     rank_by: str = DEFAULT_RANK,
     separation: float | None = None,
     max_extra_tests: int | None = None,
+    scale_tolerance_ppm: float = SCALE_TOLERANCE_PPM,
 ) -> dict:
     """Simulate, diagnose, propose extra tests if undecided, simulate them, diagnose again.
 
@@ -255,6 +256,9 @@ def discover(
         ``extra_tests``. None (default): every round has ``extra_tests`` tests.
     max_extra_tests : int, optional
         A sized round's largest size, in [``extra_tests``, 50]; default ``3 * extra_tests`` (at most 50).
+    scale_tolerance_ppm : float
+        Every diagnosis's tolerance for the scanner's scale measured on the block [ppm]
+        (``vtestbed diagnose --scale-tolerance``; :mod:`.researcher.scale_term`).
 
     Returns
     -------
@@ -281,9 +285,11 @@ def discover(
         raise OutOfRangeError(f"rounds = {rounds!r} is outside the valid range [{lo}, {hi}]")
     max_extra_tests = _round_size_limit(extra_tests, separation, max_extra_tests)
     require_rank(rank_by)  # before the simulation, not in the first diagnosis after it
+    require_tolerance(scale_tolerance_ppm)
     out = Path(out)
     ds0 = simulate(scenario, out / "round0" / "dataset", progress=progress)
-    rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose", rank_by=rank_by)
+    rep0 = diagnose(ds0, alpha=alpha, out=out / "round0" / "diagnose", rank_by=rank_by,
+                    scale_tolerance_ppm=scale_tolerance_ppm)  # fmt: skip
     result = {"scenario": scenario.name, "seed": scenario.seed, "alpha": alpha, "criterion": criterion,
               "alpha_after_round": alpha * ADAPTIVE_LEVEL_SHARE, "rank_by": rep0["rank_by"],
               "named_before": rep0["named"], "confusable_before": rep0["confusable"],
@@ -308,7 +314,7 @@ def discover(
             k, scenario, current, dataset, rivals, out, lab,
             dict(alpha_before=alpha if k == 1 else round_alpha, alpha=round_alpha, extra_tests=extra_tests,
                  criterion=criterion, n_poses=n_poses, tensions=tensions, rank_by=rank_by, separation=separation,
-                 max_extra_tests=max_extra_tests),
+                 max_extra_tests=max_extra_tests, scale_tolerance_ppm=scale_tolerance_ppm),
             progress,
         )  # fmt: skip
         result["rounds"].append(entry)
@@ -346,7 +352,7 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     from .experiment import simulate
 
     # The researcher's side: the dataset, its floor, the lab's layout, a nominal rig; never the world.
-    ctx, white, pool = _researcher_view(dataset, options["alpha_before"])
+    ctx, white, pool = _researcher_view(dataset, options["alpha_before"], options["scale_tolerance_ppm"])
     rng = np.random.default_rng(np.random.SeedSequence(original.seed, spawn_key=(POOL_STREAM, k - 1)))
     tests = disc.test_pool(original.robot, original.lab, rng, options["n_poses"], options["tensions"])
     refused_before = sum(v is not None for v in lab.refused.values())
@@ -382,8 +388,9 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     combined = load_scenario(folder / "scenario.toml")
     _extend_dataset(dataset, folder / "dataset", combined)
     ds = simulate(combined, folder / "dataset", progress=progress)
-    report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose", rank_by=options["rank_by"])
-    ctx_k, white_k, pool_k = _researcher_view(ds, options["alpha"])
+    report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose", rank_by=options["rank_by"],
+                      scale_tolerance_ppm=options["scale_tolerance_ppm"])  # fmt: skip
+    ctx_k, white_k, pool_k = _researcher_view(ds, options["alpha"], options["scale_tolerance_ppm"])
     entry |= {"measured_after": measured_separation(ctx_k, white_k, pool_k, rivals), "named": report["named"],
               "confusable": report["confusable"], "validation_gap": validation_summary(report)}  # fmt: skip
     return entry, combined, ds, report

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..files import dumps
+from ..researcher.block_size import SCALE_TOLERANCE_PPM, SCALE_TOLERANCE_RANGE_PPM
 from .args import integer, number, output_dir
 
 
@@ -22,6 +23,7 @@ def _cmd_discover(args) -> int:
         load_scenario(args.scenario), args.out, extra_tests=args.extra_tests, alpha=args.alpha,
         criterion=args.criterion, n_poses=args.n_poses, progress=not args.quiet, always=args.always,
         rounds=args.rounds, separation=args.separation, max_extra_tests=args.max_extra_tests,
+        scale_tolerance_ppm=args.scale_tolerance,
     )  # fmt: skip
     html = _pages(Path(args.out), len(result["rounds"]))
     if args.json:
@@ -79,6 +81,9 @@ def register(sub) -> None:
                         "a 1-df test at 0.1 %% with 95 %% power)")  # fmt: skip
     p.add_argument("--max-extra-tests", type=integer(1, 50), default=None,
                    help="a sized round's largest size, --extra-tests to 50 (default 3 x --extra-tests)")  # fmt: skip
+    p.add_argument("--scale-tolerance", type=number(*SCALE_TOLERANCE_RANGE_PPM, "ppm"), default=SCALE_TOLERANCE_PPM,
+                   metavar="PPM", help="every diagnosis's tolerance for the scanner's scale measured on the block, as "
+                   "vtestbed diagnose --scale-tolerance (default %(default)g ppm)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_discover)
