@@ -29,6 +29,7 @@ from vtestbed.errors import OutOfRangeError, ScenarioError, UnknownNameError
 from vtestbed.experiment import simulate
 from vtestbed.files import read_toml
 from vtestbed.researcher.diagnose import DEFAULT_ALPHA, RANK_CRITERIA
+from vtestbed.researcher.scale_term import report_scale
 from vtestbed.scenario import load_scenario, parse_scenario
 from vtestbed.scenario_writer import proposal_text, scenario_text, toml_text
 
@@ -155,7 +156,10 @@ def test_predicted_separation_is_the_refit_on_the_proposed_tests(run):
     round-0 tests plus the proposed ones (read back from discover.json), by least squares."""
     scenario, result, out = run
     prop, rivals = result["proposal"], result["rivals"]
-    ctx, white, pool = _researcher_view(out / "round0" / "dataset", DEFAULT_ALPHA)  # the run's alpha
+    rep0 = json.loads((out / "round0" / "diagnose" / "report.json").read_text())  # the scale as it settled
+    ctx, white, pool = _researcher_view(
+        out / "round0" / "dataset", DEFAULT_ALPHA, report_scale(rep0)
+    )  # the run's alpha
     hyps = {h.label: h for h in disc.fit_hypotheses(ctx, white, [], rivals["rivals"], pool)}
     tests = [SimpleNamespace(q=np.radians(t["q_deg"]), hook=t["hook"], anchor=t["anchor"], tension=t["tension_N"])
              for t in prop["tests"]]  # fmt: skip

@@ -44,7 +44,7 @@ from .discovery_markdown import markdown
 from .errors import DatasetError, OutOfRangeError, VtestbedError, require_level
 from .files import read_json, write_json_atomic, write_text_atomic
 from .researcher import cloud
-from .researcher.block_size import SCALE_TOLERANCE_PPM, require_tolerance, scale_check
+from .researcher.block_size import SCALE_TOLERANCE_PPM, require_tolerance
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .researcher.diagnose import (
     DEFAULT_ALPHA,
@@ -56,7 +56,7 @@ from .researcher.diagnose import (
 )
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
-from .researcher.scale_term import corrected, settle_scale
+from .researcher.scale_term import ScaleTerm, corrected, report_scale
 from .researcher.scan_mean import load_with_floor
 from .researcher.statics import ExactStatics
 from .run_record import versions
@@ -161,20 +161,19 @@ class LabCheck:
         return self.refused[key] is None
 
 
-def _researcher_view(root: Path, alpha: float, scale_tolerance_ppm: float = SCALE_TOLERANCE_PPM):
+def _researcher_view(root: Path, alpha: float, scale: ScaleTerm | None = None):
     """(ctx, white, pool): the dataset's identification tests, noise floor and candidate terms,
-    measured as ``diagnose`` at ``alpha`` measures them (the translations corrected where the
-    block's size measures the scale, :mod:`.researcher.scale_term`). The pool holds every
-    candidate, a scale the block settled on this dataset too: an earlier round's rivals, read
-    from its report, may hold it where the block could not tell before the round's tests."""
+    measured as ``diagnose`` at ``alpha`` measures them, the translations corrected as its
+    diagnosis settled the scale (``scale``: its report's ``scale_term``, :func:`report_scale`;
+    None: as measured). The pool holds every candidate, a scale the block settled on this dataset
+    too: an earlier round's rivals, read from its report, may hold it where the block could not
+    tell before the round's tests."""
     from .robots import load_robot
 
     # as diagnose measures: against the mean unloaded scan, the creep check at the same alpha
-    setup, ms, floor = load_with_floor(root, alpha, edges=True)
+    setup, ms, floor = load_with_floor(root, alpha)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
-    check = scale_check([m.edge_lengths for m in ms], setup.block_edge, alpha, scale_tolerance_ppm)
-    term = settle_scale(check, candidates(kin, CANDIDATE_NAMES))
-    ident = corrected([m for m in ms if m.group == "identification"], term)
+    ident = corrected([m for m in ms if m.group == "identification"], scale)
     # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
     ctx = ModelContext(ident, setup, kin, ExactStatics(kin, setup))
     white = Whitener(floor)
@@ -311,7 +310,7 @@ def discover(
             if rivals is None:
                 break
         entry, current, dataset, report = _discrimination_round(
-            k, scenario, current, dataset, rivals, out, lab,
+            k, scenario, current, dataset, report, rivals, out, lab,
             dict(alpha_before=alpha if k == 1 else round_alpha, alpha=round_alpha, extra_tests=extra_tests,
                  criterion=criterion, n_poses=n_poses, tensions=tensions, rank_by=rank_by, separation=separation,
                  max_extra_tests=max_extra_tests, scale_tolerance_ppm=scale_tolerance_ppm),
@@ -342,17 +341,18 @@ def _round_size_limit(extra_tests: int, separation, max_extra_tests) -> int:
     return int(limit)
 
 
-def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, options, progress):
+def _discrimination_round(k, original, scenario, dataset, report, rivals, out, lab, options, progress):
     """Round ``k``: propose tests that separate ``rivals`` from ``dataset``, run them in the world of
     ``scenario`` (the original plus the earlier rounds' tests), diagnose the combined dataset.
-    ``dataset`` was diagnosed at ``options["alpha_before"]``, the combined one is at ``options["alpha"]``.
+    ``dataset`` was diagnosed at ``options["alpha_before"]`` (``report``), the combined one is at
+    ``options["alpha"]``.
 
     Returns the round's record, the combined scenario, its dataset and its diagnosis.
     """
     from .experiment import simulate
 
     # The researcher's side: the dataset, its floor, the lab's layout, a nominal rig; never the world.
-    ctx, white, pool = _researcher_view(dataset, options["alpha_before"], options["scale_tolerance_ppm"])
+    ctx, white, pool = _researcher_view(dataset, options["alpha_before"], report_scale(report))
     rng = np.random.default_rng(np.random.SeedSequence(original.seed, spawn_key=(POOL_STREAM, k - 1)))
     tests = disc.test_pool(original.robot, original.lab, rng, options["n_poses"], options["tensions"])
     refused_before = sum(v is not None for v in lab.refused.values())
@@ -390,7 +390,7 @@ def _discrimination_round(k, original, scenario, dataset, rivals, out, lab, opti
     ds = simulate(combined, folder / "dataset", progress=progress)
     report = diagnose(ds, alpha=options["alpha"], out=folder / "diagnose", rank_by=options["rank_by"],
                       scale_tolerance_ppm=options["scale_tolerance_ppm"])  # fmt: skip
-    ctx_k, white_k, pool_k = _researcher_view(ds, options["alpha"], options["scale_tolerance_ppm"])
+    ctx_k, white_k, pool_k = _researcher_view(ds, options["alpha"], report_scale(report))
     entry |= {"measured_after": measured_separation(ctx_k, white_k, pool_k, rivals), "named": report["named"],
               "confusable": report["confusable"], "validation_gap": validation_summary(report)}  # fmt: skip
     return entry, combined, ds, report

@@ -9,7 +9,7 @@ from ..researcher.block_size import NOT_CHECKED, ScaleCheck
 from ..researcher.diagnose import confusable_margin, rank_label
 from ..researcher.discrepancy import COMPONENTS, detection_alone, no_candidates_text, stand_ins
 from ..researcher.loaded_scatter import LoadedScatter
-from ..researcher.scale_term import ScaleTerm, named_note
+from ..researcher.scale_term import named_note, report_scale
 from . import figures
 from .blocks import Figure, KeyValues, Num, Plot3D, Section, Table, Text, versions
 from .loader import ResultFolder
@@ -34,7 +34,7 @@ def noise_floor(folder: ResultFolder) -> Section:
         blocks.append(Text([check.sentence(r["alpha"])], id="loaded-scatter"))
     # the block's size as a length standard (researcher/block_size.py), and what the naming made of
     # it (researcher/scale_term.py; older reports have no scale_term)
-    settled = [ScaleTerm.from_dict(t).sentence()] if (t := r.get("scale_term")) else []
+    settled = [term.sentence()] if (term := report_scale(r)) else []
     if scale := r.get("scale_check"):
         blocks.append(Text([ScaleCheck.from_dict(scale).sentence(), *settled], id="scale-check"))
     elif "scale_check" in r:  # not checked (a mesh target, too few tests); reports before 2026-11-29: no key

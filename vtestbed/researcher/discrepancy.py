@@ -42,10 +42,10 @@ from .kinematics import ArmKinematics
 from .loaded_scatter import LoadedScatter
 from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
 from .scale_term import (
-    ScaleTerm,
     corrected,
     named_labels,
     named_note,
+    report_scale,
     settle_scale,
     settled_pool,
     with_measured,
@@ -333,8 +333,8 @@ def markdown(report: dict, joint_names) -> str:
     elif "scale_check" in report:
         lines += ["", f"**Scale.** {block_size.NOT_CHECKED}"]
     # what the naming made of the scale (none: no scanner_scale candidate, or an older report)
-    if report.get("scale_term"):
-        lines[-1] += " " + ScaleTerm.from_dict(report["scale_term"]).sentence()
+    if scale := report_scale(report):
+        lines[-1] += " " + scale.sentence()
     lines += ["", "| joint | k before [N*mm/rad] | k after [N*mm/rad] |", "| --- | --- | --- |"]
     before, after = report["baseline"], report["model"]
     rows = zip(

@@ -11,6 +11,7 @@ Units: SI; stiffness in N*m/rad.
 
 from __future__ import annotations
 
+from ..dataset import read_setup
 from ..errors import ConvergenceError, DatasetError, OutOfRangeError, UnknownNameError
 from ..robots import load_robot
 from .block_size import scale_check
@@ -113,11 +114,14 @@ def identify_with_model(root, model_path) -> dict:
     verdict, since the model says the scale is there), and fitted to the displacements otherwise
     (a mesh target, fewer than 3 tests).
     """
-    setup, measurements, floor = load_with_floor(root, edges=True)  # as diagnose measures
+    setup = read_setup(root)  # the robot the model file must match, before the clouds are fitted
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     terms, statics = read_model(model_path, setup.robot, kin)
-    check = scale_check([m.edge_lengths for m in measurements], setup.block_edge, DEFAULT_ALPHA)
-    scale = measured(check) if any(t.label == SCALE_LABEL for t in terms) else None
+    with_scale = any(t.label == SCALE_LABEL for t in terms)  # only then the block's edges are measured
+    setup, measurements, floor = load_with_floor(root, edges=with_scale)  # as diagnose measures
+    scale = None
+    if with_scale:
+        scale = measured(scale_check([m.edge_lengths for m in measurements], setup.block_edge, DEFAULT_ALPHA))
     terms, measurements = settled_pool(scale, terms), corrected(measurements, scale)
     exact = baseline_statics(statics, kin, setup)
     ident = [m for m in measurements if m.group == "identification"]

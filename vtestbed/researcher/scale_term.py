@@ -131,6 +131,13 @@ def named_labels(labels: list, term: ScaleTerm | None) -> list:
     return [SCALE_LABEL, *labels] if term is not None and term.action == "measured" else list(labels)
 
 
+def report_scale(report: dict) -> ScaleTerm | None:
+    """What a diagnosis report settled for the scale (its ``scale_term``; None: no
+    ``scanner_scale`` candidate, or a report from before the check settled it)."""
+    term = report.get("scale_term")
+    return ScaleTerm.from_dict(term) if term else None
+
+
 def named_note(report: dict, label: str) -> str:
     """What a report says beside a named ``label``: for a scale measured on the block, that it was
     (the likelihood ratio did not name it); else nothing."""
