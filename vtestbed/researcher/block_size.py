@@ -13,18 +13,22 @@ Units: m for lengths, ppm (1e-6) for scales. Frames: the fitted block frame B (t
 ``[-e, 0]^3``; the scanned faces are +x, +y, +z at 0).
 
 The estimator (:func:`apparent_edges`): for each face and in-plane axis, the points in a band from
-the far edge to :data:`EDGE_BAND_M` inside the declared edge are uniform along the axis on a
-continuous surface, so their mean places the edge (:func:`_far_edge`). On a scan's pixel grid the
-last row of points stops up to a row spacing short of the edge, where an edge runs along the
-grid's rows that error is the same for all its points, and the grid's phase at the band's inner
-end adds its own: one edge of one scan errs by several thousand ppm, either way. Over the six
-edges and the tests' varied poses it averages out but for 32-68 ppm short (the virtual lab's
-scanner: docs/discrepancy.md, "The scanner's scale, measured on the block"), which the check's
-tolerance covers.
+the far edge to :data:`EDGE_BAND_M` inside the declared edge cover the band evenly on a continuous
+surface, so their mean places the edge (:func:`_far_edge`). Two things keep a real scan from
+that. The scanner's perspective thins the points towards the far edge, further from the scanner,
+and pulls a plain mean inwards by about the band's width squared (55 ppm short with this band).
+A pinhole camera's pixel grid puts one point on a plane per ``z**3`` of area (``z`` the depth
+along the optical axis, the cloud's +z), so each point is weighted by ``z**3``, the area it
+stands for: the band's area-weighted mean. And on the pixel grid the last row of points stops up
+to a row spacing short of the edge: where an edge runs nearly along the grid's rows that error is
+the same for all its points, and one edge of one scan errs by up to several thousand ppm, either
+way, while most edges err by about a hundred (docs/discrepancy.md, "The scanner's scale, measured
+on the block").
 
-The check (:func:`scale_check`): each test's mean over its scans and edges is one sample; their
-mean against a tolerance ``|s| <= tolerance`` (a Student t over the tests, so the pose-to-pose
-scatter of the grid's error is in the standard error). A lab sets the tolerance from how well it
+The check (:func:`scale_check`): each test's scale is a trimmed mean (:data:`EDGE_TRIM` cut at
+each end) of its scans' edges, so an edge aligned with the grid does not carry its test; the
+tests' mean against a tolerance ``|s| <= tolerance`` (a Student t over the tests, so the
+pose-to-pose scatter of the grid's error is in the standard error). A lab sets the tolerance from how well it
 knows its block (a machined block to 0.01 mm over 80 mm: 125 ppm) and how sharp its edges scan
 (a broken edge of 0.1 mm shortens the apparent edge by about that much): the default,
 :data:`SCALE_TOLERANCE_PPM`, assumes sharp edges known to 0.08 mm.
@@ -40,7 +44,8 @@ from ..errors import OutOfRangeError, require_level
 
 SCALE_TOLERANCE_PPM = 1000.0  # |s| within this is consistent with a sharp block known to 0.08 mm
 SCALE_TOLERANCE_RANGE_PPM = (0.0, 30000.0)  # the band ends 3 mm (37 500 ppm) inside the declared edge
-EDGE_BAND_M = 3e-3  # the band at the far edge whose points' mean places the edge
+EDGE_BAND_M = 3e-3  # the band at the far edge whose points' area-weighted mean places the edge
+EDGE_TRIM = 0.2  # share of a test's edge values cut at each end before their mean (module docstring)
 BEYOND_WINDOW_M = 0.3e-3  # points further beyond the current edge estimate are outliers
 FACE_GATE_M = 0.2e-3  # a point belongs to face k within this of its plane (or 5 times the fit's rms)
 MIN_EDGE_POINTS = 50  # fewest points in the band for an edge to be measured
@@ -66,7 +71,9 @@ def apparent_edges(points: np.ndarray, pose: np.ndarray, edge_m: float, rms_m=No
     Parameters
     ----------
     points : (N, 3) array
-        The cloud [m], in the frame ``pose`` is given in (the scanner's).
+        The cloud [m], in the scanner's camera frame (optical axis +z), the frame ``pose`` is
+        given in. A cloud with a point at ``z <= 0`` is not in a camera frame: its points are
+        weighted evenly.
     pose : (4, 4) array
         The fitted block frame B (``cloud.fit_block_frame``): its corner and axes.
     edge_m : float
@@ -75,7 +82,10 @@ def apparent_edges(points: np.ndarray, pose: np.ndarray, edge_m: float, rms_m=No
     rms_m : (3,) array, optional
         The fit's robust residual of each face [m]; the face gate widens to 5 times it.
     """
-    local = pose[:3, :3].T @ (np.asarray(points, dtype=float).T - pose[:3, 3][:, None])
+    points = np.asarray(points, dtype=float)
+    local = pose[:3, :3].T @ (points.T - pose[:3, 3][:, None])
+    # the area each point stands for on a face (module docstring): z**3 for a pinhole camera
+    area = points[:, 2] ** 3 if points.size and points[:, 2].min() > 0.0 else np.ones(len(points))
     gates = np.full(3, FACE_GATE_M) if rms_m is None else np.maximum(FACE_GATE_M, 5.0 * np.asarray(rms_m))
     # within the block's box, 10 % beyond its declared edge: the mount and other clutter that lies
     # in a face's plane but off the block (about 1 % of a face's points) stay out of its bands
@@ -84,17 +94,18 @@ def apparent_edges(points: np.ndarray, pose: np.ndarray, edge_m: float, rms_m=No
     for k in range(3):
         on_face = in_box & (np.abs(local[k]) < gates[k])
         for j in (j for j in range(3) if j != k):
-            out.append(_far_edge(local[j, on_face & (local[j] < 0.0)], edge_m))
+            mine = on_face & (local[j] < 0.0)
+            out.append(_far_edge(local[j, mine], area[mine], edge_m))
     return np.array(out)
 
 
-def _far_edge(u: np.ndarray, edge_m: float) -> float:
+def _far_edge(u: np.ndarray, area: np.ndarray, edge_m: float) -> float:
     """Where the points ``u`` [m] (negative, the face's extent along one axis) end, NaN with too few
-    points near the end.
+    points near the end; ``area`` weights each point by the face area it stands for.
 
     The band ``(-L - w, -edge_m + b)`` ends at a fixed place (:data:`EDGE_BAND_M` inside the
-    declared edge), so for a uniform density from ``-L`` its mean is ``(-L - edge_m + b) / 2``
-    and ``L = b - edge_m - 2 mean``: unbiased, its noise twice the mean's. Its start, a little past
+    declared edge), so for points that cover it evenly from ``-L`` its area-weighted mean is
+    ``(-L - edge_m + b) / 2`` and ``L = b - edge_m - 2 mean``: unbiased, its noise twice the mean's. Its start, a little past
     the current ``L`` (:data:`BEYOND_WINDOW_M`), only leaves out points far beyond the edge
     (outliers); ``L`` starts from a low quantile and is iterated so that start stays past it. (A
     band placed from the estimate itself, ``(-L, -L + b)``, moves with it and is biased, -5 um on
@@ -103,10 +114,10 @@ def _far_edge(u: np.ndarray, edge_m: float) -> float:
         return float("nan")
     end = -float(np.quantile(u, 0.002))
     for _ in range(3):
-        band = u[(u > -end - BEYOND_WINDOW_M) & (u < -edge_m + EDGE_BAND_M)]
-        if band.size < MIN_EDGE_POINTS:
+        band = (u > -end - BEYOND_WINDOW_M) & (u < -edge_m + EDGE_BAND_M)
+        if np.count_nonzero(band) < MIN_EDGE_POINTS:
             return float("nan")
-        end = EDGE_BAND_M - edge_m - 2.0 * float(band.mean())
+        end = EDGE_BAND_M - edge_m - 2.0 * float(np.average(u[band], weights=area[band]))
     return end
 
 
@@ -117,8 +128,8 @@ class ScaleCheck:
     Attributes
     ----------
     scale_ppm, std_ppm : float
-        The mean of the tests' scales (each the mean over its scans and edges of ``L / e - 1``) and
-        its standard error [ppm].
+        The mean of the tests' scales (each the trimmed mean, :data:`EDGE_TRIM`, over its scans and
+        edges of ``L / e - 1``) and its standard error [ppm].
     interval_ppm : (float, float)
         Its 95 % interval (Student t, ``n_tests - 1`` degrees of freedom).
     n_tests : int
@@ -152,7 +163,7 @@ class ScaleCheck:
         where = (
             f"The block's apparent edges put the scanner's length scale at {self.scale_ppm:+.0f} ppm "
             f"(95 % interval {lo:+.0f} to {hi:+.0f} ppm over the {self.n_tests} tests; the edge estimate itself "
-            f"may read tens of ppm short, which the tolerance of {self.tolerance_ppm:g} ppm for the block's size "
+            f"may be off by about 10 ppm, which the tolerance of {self.tolerance_ppm:g} ppm for the block's size "
             "and edges covers)"
         )
         if self.beyond:
@@ -204,7 +215,7 @@ def scale_check(
         if values is not None:  # scans with all six edges (each edge has its own grid error)
             whole = values[np.isfinite(values).all(axis=1)]
             if len(whole):
-                per_test.append(float(np.mean(whole / edge_m - 1.0)) * 1e6)
+                per_test.append(float(stats.trim_mean((whole / edge_m - 1.0).ravel(), EDGE_TRIM)) * 1e6)
     n = len(per_test)
     if n < MIN_TESTS:
         return None

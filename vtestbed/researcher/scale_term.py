@@ -14,7 +14,7 @@ candidate (:func:`settle_scale`):
   translation is divided by ``1 + s``, ``scanner_scale`` is named with ``s`` and the check's
   standard error, and the other candidates are tested on the corrected data.
 - **within** it: the candidate is ruled out and leaves the candidates (one fewer in the
-  Bonferroni family). What the check rules out (the tolerance plus its interval, about 1100 ppm)
+  Bonferroni family). What the check rules out (the tolerance plus its interval, about 1030 ppm)
   lies far below what the stiffness fit could name.
 - **neither**, or not checked (a mesh target, fewer than 3 tests): the candidate stays a fitted
   term, as before the check existed.
