@@ -225,7 +225,7 @@ def test_the_worlds_scanner_scale_is_measured_by_the_block_edges(worlds):
         assert check.n_tests == len(tests) == 25
         # the gridded scan's bias (module docstring) is far inside the tolerance; 4000 ppm is not
         assert check.beyond == (scale > 0)
-        # about 10 ppm short and 10 ppm of scatter over 25 tests (the 3 mm band's plain mean: 55 short)
+        # off by about 10 ppm, 10 ppm of scatter over 25 tests (the first version, even weights: 55 short)
         assert abs(check.scale_ppm - scale) < 40.0
     shift = (per_world[SCALE_PPM] - per_world[0.0]).mean(axis=(1, 2)) * 1e6  # per test [ppm]
     assert abs(np.median(shift) - SCALE_PPM) < 100.0
@@ -306,7 +306,7 @@ def test_diagnose_names_the_scale_the_block_measures(worlds, clean_diagnosis, tm
     report = diagnose(worlds[SCALE_PPM], out=tmp_path / "diag")
     assert report["named"][0] == "scanner_scale" and report["scale_term"]["action"] == "measured"
     scale = report["model"]["parameters"]["scanner_scale"]["scale"]
-    assert abs(scale * 1e6 - SCALE_PPM) < 50.0  # the truth; the 3 mm band's untrimmed mean read 55 short
+    assert abs(scale * 1e6 - SCALE_PPM) < 50.0  # the truth; the first version (even weights) read 55 short
     assert all(t["label"] != "scanner_scale" for rnd in report["rounds"] for t in rnd["tests"])
     clean = np.array(clean_diagnosis[0]["model"]["stiffness_Nm_per_rad"])
     after = np.array(report["model"]["stiffness_Nm_per_rad"]) / clean - 1

@@ -28,8 +28,8 @@ on the block").
 The check (:func:`scale_check`): each test's scale is a trimmed mean (:data:`EDGE_TRIM` cut at
 each end) of its scans' edges, so an edge aligned with the grid does not carry its test; the
 tests' mean against a tolerance ``|s| <= tolerance`` (a Student t over the tests, so the
-pose-to-pose scatter of the grid's error is in the standard error). A lab sets the tolerance from how well it
-knows its block (a machined block to 0.01 mm over 80 mm: 125 ppm) and how sharp its edges scan
+pose-to-pose scatter of the grid's error is in the standard error). A lab sets the tolerance
+from how well it knows its block (a machined block to 0.01 mm over 80 mm: 125 ppm) and how sharp its edges scan
 (a broken edge of 0.1 mm shortens the apparent edge by about that much): the default,
 :data:`SCALE_TOLERANCE_PPM`, assumes sharp edges known to 0.08 mm.
 """
@@ -105,11 +105,11 @@ def _far_edge(u: np.ndarray, area: np.ndarray, edge_m: float) -> float:
 
     The band ``(-L - w, -edge_m + b)`` ends at a fixed place (:data:`EDGE_BAND_M` inside the
     declared edge), so for points that cover it evenly from ``-L`` its area-weighted mean is
-    ``(-L - edge_m + b) / 2`` and ``L = b - edge_m - 2 mean``: unbiased, its noise twice the mean's. Its start, a little past
-    the current ``L`` (:data:`BEYOND_WINDOW_M`), only leaves out points far beyond the edge
-    (outliers); ``L`` starts from a low quantile and is iterated so that start stays past it. (A
-    band placed from the estimate itself, ``(-L, -L + b)``, moves with it and is biased, -5 um on
-    these faces.)"""
+    ``(-L - edge_m + b) / 2`` and ``L = b - edge_m - 2 mean``: unbiased, its noise twice the
+    mean's. Its start, a little past the current ``L`` (:data:`BEYOND_WINDOW_M`), only leaves out
+    points far beyond the edge (outliers); ``L`` starts from a low quantile and is iterated so that
+    start stays past it. (A band placed from the estimate itself, ``(-L, -L + b)``, moves with it
+    and is biased, -5 um on these faces.)"""
     if u.size < MIN_EDGE_POINTS:
         return float("nan")
     end = -float(np.quantile(u, 0.002))
