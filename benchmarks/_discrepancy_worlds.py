@@ -36,7 +36,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     validation_gap,
 )
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
-from vtestbed.researcher.scale_term import corrected, named_labels, settle_scale, settled_pool  # noqa: E402
+from vtestbed.researcher.scale_term import corrected_context, named_labels, settle_scale, settled_pool  # noqa: E402
 from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
@@ -186,7 +186,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     # as diagnose: the scale measured or ruled out by the block's size where its check decides
     check = scale_check([m.edge_lengths for m in ms], prepared.setup.block_edge, ALPHA)
     term = settle_scale(check, pool)
-    fixed, fixed_val = (model_context(corrected(g, term), prepared, statics) for g in (ident, valid))
+    fixed, fixed_val = corrected_context(ctx, term), corrected_context(ctx_val, term)
     chosen, steps, final = name_effects(fixed, white, settled_pool(term, pool), alpha=ALPHA, rank_by=RANK)
     before = validation_gap(ctx_val, white, base, [])["ratio_to_floor"]
     gap_after = validation_gap(fixed_val, white, final, chosen)

@@ -41,9 +41,9 @@ import numpy as np
 from .dataset import CLOUD_DIR, TRUTH_FILE
 from .design import discriminate as disc
 from .discovery_markdown import markdown
-from .errors import DatasetError, OutOfRangeError, VtestbedError, require_level
+from .errors import DatasetError, OutOfRangeError, require_level
 from .files import read_json, write_json_atomic, write_text_atomic
-from .researcher import cloud
+from .lab_check import LabCheck
 from .researcher.block_size import SCALE_TOLERANCE_PPM, require_tolerance
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .researcher.diagnose import (
@@ -62,7 +62,6 @@ from .researcher.statics import ExactStatics
 from .run_record import versions
 from .scenario import Scenario, load_scenario
 from .scenario_writer import proposal_text, scenario_text
-from .transforms import invert
 
 __all__ = ["LabCheck", "discover", "markdown", "validation_summary"]
 
@@ -105,60 +104,6 @@ def _link_or_copy(src, dst):
     except OSError:  # another file system, or no hard links: copy
         shutil.copy2(src, dst)
     return dst
-
-
-SCAN_MARGIN = 0.7  # a proposed test's faces must span this fraction of the edge noise-free (fit: 0.5)
-SENSOR_MARGIN = 0.95  # its true F/T load must stay within this fraction of the range: noise and bias
-
-
-class LabCheck:
-    """The answer to "can this test be run?" from a simulator of the researcher's *nominal* lab.
-
-    A MuJoCo rig of the robot's description, the lab's layout, the scanner's stand-off and the
-    F/T range, **without** the scenario's hidden effects: what a researcher could build from their
-    own nominal model (the world's simulation is never asked). Its joint stiffness is the rig's
-    default, ``models/<robot>/truth.toml``, which for the KR60 is the paper's published Table 5
-    (the ``paper_table5`` prior a researcher has too). Plus the researcher's cloud fit of both
-    noise-free scans with a margin on the faces' extent. Cached.
-    """
-
-    def __init__(self, scenario: Scenario):
-        from .world.rig import Rig
-
-        self.lab = scenario.lab
-        self.rig = Rig(scenario.robot, scenario.lab)  # no effects: the nominal lab
-        self.distance, self.placement = scenario.scanner.distance, scenario.scanner.placement
-        self.kin = ArmKinematics(scenario.robot, scenario.lab.block_in_flange)
-        self.params = cloud.FitParams(edge_m=scenario.lab.block.edge, min_extent_fraction=SCAN_MARGIN)
-        self.refused: dict = {}
-
-    def __call__(self, test) -> bool:
-        from .world.physics import run_test_physics
-
-        key = (np.asarray(test.q).tobytes(), test.hook, test.anchor, float(test.tension))
-        if key in self.refused:
-            return self.refused[key] is None
-        try:
-            phys = run_test_physics(
-                self.rig,
-                test.q,
-                test.hook,
-                test.anchor,
-                test.tension,
-                self.distance,
-                self.placement,
-                clearance="raise",  # a proposed test must be one a lab can run
-            )
-            limit = SENSOR_MARGIN * np.asarray(self.lab.sensor.wrench_range)
-            if np.any(np.abs(phys.loaded.sensor_wrench) > limit):  # measured 330.9 N on a 330 N axis
-                raise OutOfRangeError(f"the F/T load is within {1 - SENSOR_MARGIN:.0%} of the sensor's range")
-            nominal = invert(phys.scanner.pose_world) @ self.kin.tool_pose(test.q)
-            for hits in (phys.hits_unloaded, phys.hits_loaded):
-                cloud.fit_block_frame(hits.points_m, nominal, self.params)
-            self.refused[key] = None
-        except VtestbedError as exc:
-            self.refused[key] = f"{type(exc).__name__}: {exc}"
-        return self.refused[key] is None
 
 
 def _researcher_view(root: Path, alpha: float, scale: ScaleTerm | None = None):

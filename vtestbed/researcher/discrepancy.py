@@ -42,7 +42,7 @@ from .kinematics import ArmKinematics
 from .loaded_scatter import LoadedScatter
 from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
 from .scale_term import (
-    corrected,
+    corrected_context,
     named_labels,
     named_note,
     report_scale,
@@ -106,8 +106,7 @@ def diagnose(
     # ruled out, and the naming tests the other candidates only (scale_term)
     term = settle_scale(scale, pool)
     pool = settled_pool(term, pool)
-    fixed = ModelContext(corrected(ident, term), setup, kin, exact)
-    fixed_val = ModelContext(corrected(valid, term), setup, kin, exact)
+    fixed, fixed_val = corrected_context(ctx, term), corrected_context(ctx_val, term)
     chosen, steps, final = name_effects(fixed, white, pool, alpha, rank_by=rank_by)
     names_chosen = {c.label for c in chosen}
     absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}

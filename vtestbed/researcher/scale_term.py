@@ -117,6 +117,14 @@ def corrected(measurements: list, term: ScaleTerm | None) -> list:
     return out
 
 
+def corrected_context(ctx, term: ScaleTerm | None):
+    """A ``candidates.ModelContext`` of the :func:`corrected` measurements; ``ctx`` itself (its
+    cached columns kept) where the scale is not measured."""
+    if term is None or term.action != "measured":
+        return ctx
+    return type(ctx)(corrected(ctx.measurements, term), ctx.setup, ctx.kin, ctx.statics)
+
+
 def with_measured(model: dict, term: ScaleTerm | None) -> dict:
     """A fit's ``to_dict`` with a measured scale as its first term (its parameter and std)."""
     if term is None or term.action != "measured":
