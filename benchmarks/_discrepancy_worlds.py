@@ -26,17 +26,14 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
-from vtestbed.researcher.block_size import scale_check  # noqa: E402
 from vtestbed.researcher.candidates import ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import (  # noqa: E402
     DEFAULT_RANK,
-    Whitener,
-    fit_model,
-    name_effects,
     validation_gap,
 )
+from vtestbed.researcher.naming_run import run_naming  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
-from vtestbed.researcher.scale_term import corrected_context, named_labels, settle_scale, settled_pool  # noqa: E402
+from vtestbed.researcher.scale_term import named_labels  # noqa: E402
 from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
@@ -178,16 +175,11 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     # loaded scan with --loaded-repeats, unless the creep check fails at ALPHA), the floor for it
     ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded, ALPHA)
     t2 = time.perf_counter()
-    ident = [m for m in ms if m.group == "identification"]
-    valid = [m for m in ms if m.group == "validation"]
-    ctx, ctx_val = model_context(ident, prepared, statics), model_context(valid, prepared, statics)
-    white = Whitener(floor)
-    base = fit_model(ctx, white, [])
-    # as diagnose: the scale measured or ruled out by the block's size where its check decides
-    check = scale_check([m.edge_lengths for m in ms], prepared.setup.block_edge, ALPHA)
-    term = settle_scale(check, pool)
-    fixed, fixed_val = corrected_context(ctx, term), corrected_context(ctx_val, term)
-    chosen, steps, final = name_effects(fixed, white, settled_pool(term, pool), alpha=ALPHA, rank_by=RANK)
+    # as diagnose: detect, settle the scale on the block, name (the same core, naming_run)
+    exact = ExactStatics(prepared.kinematics, prepared.setup) if statics == "exact" else None
+    run = run_naming(ms, prepared.setup, prepared.kinematics, exact, floor, pool, ALPHA, RANK)
+    ctx, ctx_val, white, base, check, term = run.ctx, run.ctx_val, run.white, run.base, run.scale, run.term
+    fixed_val, chosen, steps, final = run.fixed_val, run.chosen, run.steps, run.final
     before = validation_gap(ctx_val, white, base, [])["ratio_to_floor"]
     gap_after = validation_gap(fixed_val, white, final, chosen)
     after = gap_after["ratio_to_floor"]

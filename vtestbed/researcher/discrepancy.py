@@ -29,8 +29,6 @@ from .diagnose import (
     Whitener,
     absorbed_by,
     confusable_margin,
-    fit_model,
-    name_effects,
     rank_label,
     require_rank,
     require_tests,
@@ -41,15 +39,8 @@ from .discrepancy_plots import plot_effect, plot_gap, plot_patterns
 from .kinematics import ArmKinematics
 from .loaded_scatter import LoadedScatter
 from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
-from .scale_term import (
-    corrected_context,
-    named_labels,
-    named_note,
-    report_scale,
-    settle_scale,
-    settled_pool,
-    with_measured,
-)
+from .naming_run import run_naming
+from .scale_term import named_labels, named_note, report_scale, with_measured
 from .scan_mean import load_with_floor
 
 
@@ -89,25 +80,17 @@ def diagnose(
     setup, measurements, floor = load_with_floor(root, alpha, edges=True)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = [m for m in measurements if m.group == "identification"]
-    valid = [m for m in measurements if m.group == "validation"]
     pool = candidates(kin, names)
     if pool:  # the candidate with the most parameters must still leave a residual to test
         widest = max(pool, key=lambda c: len(c.params))
         require_tests(root, len(ident), kin.robot.dof, len(widest.params), f"candidate {widest.label!r}",
                       "Record more tests or leave it out (--candidates)")  # fmt: skip
-    exact = baseline_statics(statics, kin, setup)
-    ctx, ctx_val = ModelContext(ident, setup, kin, exact), ModelContext(valid, setup, kin, exact)
-    white = Whitener(floor)
-    base = fit_model(ctx, white, [])  # the paper's model on the data as measured: the detection's
-    scale = block_size.scale_check(
-        [m.edge_lengths for m in measurements], setup.block_edge, alpha, scale_tolerance_ppm
-    )
-    # where the block's size decides the scale, it is measured (the translations corrected) or
-    # ruled out, and the naming tests the other candidates only (scale_term)
-    term = settle_scale(scale, pool)
-    pool = settled_pool(term, pool)
-    fixed, fixed_val = corrected_context(ctx, term), corrected_context(ctx_val, term)
-    chosen, steps, final = name_effects(fixed, white, pool, alpha, rank_by=rank_by)
+    # detect, settle the scale on the block (measured, ruled out or tested), name: naming_run
+    run = run_naming(measurements, setup, kin, baseline_statics(statics, kin, setup), floor, pool, alpha,
+                     rank_by, scale_tolerance_ppm)  # fmt: skip
+    ctx, ctx_val, white, base = run.ctx, run.ctx_val, run.white, run.base
+    scale, term, pool, fixed, fixed_val = run.scale, run.term, run.pool, run.fixed, run.fixed_val
+    chosen, steps, final = run.chosen, run.steps, run.final
     names_chosen = {c.label for c in chosen}
     absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}
     for cand in pool:
