@@ -187,6 +187,31 @@ def test_the_check_is_scipys_one_sample_t_test_against_the_tolerance(rng):
             block_size.scale_check(edges, EDGE, **bad)
 
 
+def test_tests_to_decide_sizes_a_round_that_decides_the_check(rng):
+    """At an estimate just past the threshold, the round it asks for makes the real check decide in
+    about 98 % of datasets drawn at that estimate (Monte Carlo of scale_check itself), where the
+    tests at hand decide in far fewer; a decided check asks for none."""
+    check = block_size.ScaleCheck(1030.0, 9.0, (1012.0, 1048.0), 25, 1000.0, 1e-3, True)
+    extra = block_size.tests_to_decide(check, alpha=0.005)
+    assert 10 <= extra <= 40
+    scatter = check.std_ppm * np.sqrt(check.n_tests)  # per test [ppm]
+
+    def decided(n_tests: int) -> float:
+        fired = 0
+        for _ in range(600):
+            values = check.scale_ppm + scatter * rng.standard_normal(n_tests)
+            edges = [np.full((1, 6), EDGE * (1 + v * 1e-6)) for v in values]
+            fired += block_size.scale_check(edges, EDGE, alpha=0.005).beyond
+        return fired / 600
+
+    assert decided(check.n_tests + extra) > 0.95 and decided(check.n_tests) < 0.85
+    far = block_size.ScaleCheck(1200.0, 9.0, (1182.0, 1218.0), 25, 1000.0, 1e-20, True)
+    inside = block_size.ScaleCheck(-5.0, 9.0, (-23.0, 13.0), 25, 1000.0, 1.0, False)
+    assert block_size.tests_to_decide(far, 0.005) == block_size.tests_to_decide(inside, 0.005) == 0
+    at_tolerance = block_size.ScaleCheck(1000.0, 9.0, (982.0, 1018.0), 25, 1000.0, 0.5, False)
+    assert block_size.tests_to_decide(at_tolerance, 0.005, limit=30) == 30  # no round decides it
+
+
 def _paper_with_repeats(folder: Path, scale_ppm: float | None = None):
     """The paper's scenario with 2 repeat scans, the world's ``scanner_scale`` at ``scale_ppm``."""
     text = re.sub(

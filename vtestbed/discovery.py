@@ -44,7 +44,7 @@ from .discovery_markdown import markdown
 from .errors import DatasetError, OutOfRangeError, require_level
 from .files import read_json, write_json_atomic, write_text_atomic
 from .lab_check import LabCheck
-from .researcher.block_size import SCALE_TOLERANCE_PPM, require_tolerance
+from .researcher.block_size import SCALE_TOLERANCE_PPM, ScaleCheck, require_tolerance, tests_to_decide
 from .researcher.candidates import CANDIDATE_NAMES, ModelContext, candidates
 from .researcher.diagnose import (
     DEFAULT_ALPHA,
@@ -197,7 +197,10 @@ def discover(
         the design's smallest predicted T over the rival pairs reaches this (noise-floor units;
         :data:`vtestbed.design.discriminate.SEPARATION_TARGET` = 25 is a 1-df test at 0.1 % with
         95 % power). A screen round (``always``, nothing named or near the level) keeps
-        ``extra_tests``. None (default): every round has ``extra_tests`` tests.
+        ``extra_tests`` for the rivals. With ``separation`` every round, a screen round too, also
+        takes as many tests as the block's scale check needs to decide with 98 % power at its
+        present estimate (:func:`.researcher.block_size.tests_to_decide`; none where it has decided
+        by that margin already). None (default): every round has ``extra_tests`` tests.
     max_extra_tests : int, optional
         A sized round's largest size, in [``extra_tests``, 50]; default ``3 * extra_tests`` (at most 50).
     scale_tolerance_ppm : float
@@ -286,6 +289,17 @@ def _round_size_limit(extra_tests: int, separation, max_extra_tests) -> int:
     return int(limit)
 
 
+def _round_size(report: dict, options: dict) -> int:
+    """The round's first size: ``extra_tests``; a sized round (``separation``) also takes as many
+    as the block's scale check needs to decide at the next diagnosis's level, were its estimate
+    the truth (:func:`.researcher.block_size.tests_to_decide`), up to ``max_extra_tests``."""
+    size, check = options["extra_tests"], report.get("scale_check")
+    if options["separation"] is None or check is None or report.get("scale_term") is None:
+        return size  # not sized, no check (a mesh target), or scanner_scale not a candidate
+    needed = tests_to_decide(ScaleCheck.from_dict(check), options["alpha"], limit=options["max_extra_tests"])
+    return int(min(max(size, needed), options["max_extra_tests"]))
+
+
 def _discrimination_round(k, original, scenario, dataset, report, rivals, out, lab, options, progress):
     """Round ``k``: propose tests that separate ``rivals`` from ``dataset``, run them in the world of
     ``scenario`` (the original plus the earlier rounds' tests), diagnose the combined dataset.
@@ -308,7 +322,7 @@ def _discrimination_round(k, original, scenario, dataset, report, rivals, out, l
         rivals,
         tests,
         original.lab,
-        options["extra_tests"],
+        _round_size(report, options),
         options["criterion"],
         feasible=lab,
         # a screen round (nothing named, nothing near the level) has no evidence to size against: the

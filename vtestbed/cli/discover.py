@@ -78,7 +78,8 @@ def register(sub) -> None:
     p.add_argument("--separation", type=number(0.0, 1e9, low_open=True), nargs="?", const=25.0, default=None, metavar="T",
                    help="size each round: from --extra-tests, one more test at a time until the smallest "
                         "predicted T over the rival pairs reaches T (noise-floor units; 25 without a value: "
-                        "a 1-df test at 0.1 %% with 95 %% power)")  # fmt: skip
+                        "a 1-df test at 0.1 %% with 95 %% power), and as many as the block's scale check "
+                        "needs to decide with 98 %% power at its estimate")  # fmt: skip
     p.add_argument("--max-extra-tests", type=integer(1, 50), default=None,
                    help="a sized round's largest size, --extra-tests to 50 (default 3 x --extra-tests)")  # fmt: skip
     p.add_argument("--scale-tolerance", type=number(*SCALE_TOLERANCE_RANGE_PPM, "ppm"), default=SCALE_TOLERANCE_PPM,

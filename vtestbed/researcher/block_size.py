@@ -224,3 +224,39 @@ def scale_check(
     excess = abs(mean) - tolerance_ppm
     p = float(stats.t.sf(excess / se, n - 1)) if se > 0 else float(excess <= 0)
     return ScaleCheck(mean, se, (mean - half, mean + half), n, float(tolerance_ppm), p, bool(p < alpha))
+
+
+DECIDE_Z = 2.05  # a round sized for the check aims at a decision with 98 % power (one-sided normal)
+
+
+def tests_to_decide(check: ScaleCheck, alpha: float, z: float = DECIDE_Z, limit: int = 50) -> int:
+    """How many more tests, as scattered as the check's, it takes for the check to decide with
+    ``z`` standard errors to spare, were its estimate the truth: the size of a round meant to
+    settle the scale (``discover --separation``). 0 where the margin is there already.
+
+    Beyond the tolerance the margin is ``|s| - tolerance`` against the one-sided threshold at
+    ``alpha``; within it, ``tolerance - |s|`` against the 95 % interval's half-width (what
+    rules the scale out). The tests' scatter is the check's standard error times
+    ``sqrt(n_tests)``, so ``n`` more tests divide the standard error by ``sqrt(1 + n / n_tests)``.
+
+    Parameters
+    ----------
+    check : ScaleCheck
+    alpha : float
+        The level the next check runs at, in (0, 1).
+    z : float
+        The standard errors to spare (:data:`DECIDE_Z`: 98 % power at the estimate).
+    limit : int
+        The largest answer (a round's largest size).
+    """
+    from scipy import stats  # here: the command line imports this module's constants, not scipy
+
+    require_level(alpha)
+    margin = abs(check.scale_ppm) - check.tolerance_ppm
+    scatter = check.std_ppm * np.sqrt(check.n_tests)
+    for extra in range(limit + 1):
+        n = check.n_tests + extra
+        quantile = stats.t.ppf(1 - alpha, n - 1) if margin > 0 else stats.t.ppf(0.975, n - 1)
+        if abs(margin) >= (quantile + z) * scatter / np.sqrt(n):
+            return extra
+    return limit
