@@ -31,6 +31,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     DEFAULT_RANK,
     validation_gap,
 )
+from vtestbed.researcher.model_file import baseline_statics  # noqa: E402
 from vtestbed.researcher.naming_run import run_naming  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
 from vtestbed.researcher.scale_term import named_labels  # noqa: E402
@@ -38,7 +39,6 @@ from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
 # the paper scenario keeps its 7 unclear tests (docs/clearance.md): known, not repeated per world
 warnings.filterwarnings("ignore", message=r".* is not physically possible")
-from vtestbed.researcher.statics import ExactStatics  # noqa: E402
 from vtestbed.scenario import load_scenario  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 from vtestbed.world.sensors import ForceTorqueSensor  # noqa: E402
@@ -153,7 +153,7 @@ def prepared_world(name: str | None, factor: float, validation: bool = True):
 def model_context(measurements, prepared, statics: str) -> ModelContext:
     """As ``discrepancy.diagnose`` builds it: ``statics="exact"`` (its default) takes the clean
     world's exact statics (:class:`~vtestbed.researcher.statics.ExactStatics`) as the baseline."""
-    exact = ExactStatics(prepared.kinematics, prepared.setup) if statics == "exact" else None
+    exact = baseline_statics(statics, prepared.kinematics, prepared.setup)
     return ModelContext(measurements, prepared.setup, prepared.kinematics, exact)
 
 
@@ -176,7 +176,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded, ALPHA)
     t2 = time.perf_counter()
     # as diagnose: detect, settle the scale on the block, name (the same core, naming_run)
-    exact = ExactStatics(prepared.kinematics, prepared.setup) if statics == "exact" else None
+    exact = baseline_statics(statics, prepared.kinematics, prepared.setup)
     run = run_naming(ms, prepared.setup, prepared.kinematics, exact, floor, pool, ALPHA, RANK)
     ctx, ctx_val, white, base, check, term = run.ctx, run.ctx_val, run.white, run.base, run.scale, run.term
     fixed_val, chosen, steps, final = run.fixed_val, run.chosen, run.steps, run.final

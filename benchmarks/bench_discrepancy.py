@@ -1,7 +1,7 @@
 """The discrepancy workflow's confusion matrix: which hidden effect does it name, and how often?
 
 Run: .venv/bin/python benchmarks/bench_discrepancy.py [--seeds 50] [--workers 2] [--effects a,b] [--quick]
-       [--loaded-repeats 3] [--limit-factor scanner_scale=10.92]
+       [--loaded-repeats 3] [--limit-factor scanner_scale=10.32]
 
 Worlds: ``scenarios/kr60_paper.toml`` (20 identification tests at 200 N, the 5 Table 6
 validation tests) clean, and with each effect of ``vtestbed.world.effects.EFFECTS`` hidden alone
@@ -46,7 +46,7 @@ evaluations, to 20 % in lambda), bounded by the parameter's range and by the lar
 scans the researcher can still reduce (a world the cloud fit refuses is a bound, not a result).
 The power at the f_lim found is printed beside the accuracy. ``--limit-factor NAME=F`` gives an
 effect's near-limit size instead, for an effect another test detects first: the scanner's scale,
-which the block's size check detects at about x10.92 in 85 % of datasets
+which the block's size check detects at about x10.32 in 85 % of datasets
 (``bench_block_size.py``), far below its naming test's size.
 
 Scoring: "correct" when the set of named effect names is exactly the hidden effect's (several

@@ -92,6 +92,7 @@ def diagnose(
     scale, term, pool, fixed, fixed_val = run.scale, run.term, run.pool, run.fixed, run.fixed_val
     chosen, steps, final = run.chosen, run.steps, run.final
     names_chosen = {c.label for c in chosen}
+    named = named_labels([c.label for c in chosen], term)  # a measured scale first
     absorbed = {f"{c.label} {param}": note for c in chosen for param, note in c.absorbed}
     for cand in pool:
         if cand.label not in names_chosen:
@@ -118,7 +119,7 @@ def diagnose(
             "patterns": residual_patterns(per_test, features),
             "model_rejected": bool(base.p_value < alpha),
         },
-        "named": named_labels([c.label for c in chosen], term),
+        "named": named,
         "absorbed": absorbed,
         "dropped": dropped_notes(steps, names_chosen),
         "confusable": [
@@ -130,7 +131,7 @@ def diagnose(
         "model": with_measured(final.to_dict(), term),
         "validation": {"before": validation_gap(ctx_val, white, base, []),
                        "after": validation_gap(fixed_val, white, final, chosen)},
-        "effect": _effect(white, base, final, named_labels([c.label for c in chosen], term)),
+        "effect": _effect(white, base, final, named),
         "identification_fit": {"before": float(np.sqrt(base.chi2 / (6 * ctx.n_tests))),
                                "after": float(np.sqrt(final.chi2 / (6 * ctx.n_tests))),
                                "per_test_after": _per_test(white, final.residuals),

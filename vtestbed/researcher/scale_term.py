@@ -5,7 +5,7 @@ the scale leaves alone: near the naming's detection limit (about 60-90 times the
 ppm) a 6-parameter ``block_offset`` reproduces 96 % of its pattern, and after one round of
 discrimination tests 6 of 150 seeds still named the wrong one (docs/discrepancy.md). The block's
 apparent edges (:mod:`.block_size`) measure the scale directly, with a standard error of about
-20 ppm over the paper's tests. So where that check decides, the naming does not test the
+9 ppm over the paper's tests. So where that check decides, the naming does not test the
 candidate (:func:`settle_scale`):
 
 - **beyond** the tolerance: the scale is *measured*. The scanner scales every coordinate by
@@ -97,6 +97,11 @@ def measured(check: ScaleCheck | None) -> ScaleTerm | None:
     return None if check is None else ScaleTerm("measured", check.scale_ppm * 1e-6, check.std_ppm * 1e-6)
 
 
+def is_measured(term: ScaleTerm | None) -> bool:
+    """Whether the scale was measured on the block (the translations corrected, the term named)."""
+    return term is not None and term.action == "measured"
+
+
 def settled_pool(term: ScaleTerm | None, pool: list) -> list:
     """The candidates the naming still tests: without ``scanner_scale`` where the check decided."""
     if term is None or term.action == "tested":
@@ -107,7 +112,7 @@ def settled_pool(term: ScaleTerm | None, pool: list) -> list:
 def corrected(measurements: list, term: ScaleTerm | None) -> list:
     """The measurements with each displacement's translation divided by ``1 + s`` where the scale
     is measured (unchanged otherwise)."""
-    if term is None or term.action != "measured":
+    if not is_measured(term):
         return list(measurements)
     out = []
     for m in measurements:
@@ -120,14 +125,14 @@ def corrected(measurements: list, term: ScaleTerm | None) -> list:
 def corrected_context(ctx, term: ScaleTerm | None):
     """A ``candidates.ModelContext`` of the :func:`corrected` measurements; ``ctx`` itself (its
     cached columns kept) where the scale is not measured."""
-    if term is None or term.action != "measured":
+    if not is_measured(term):
         return ctx
     return type(ctx)(corrected(ctx.measurements, term), ctx.setup, ctx.kin, ctx.statics)
 
 
 def with_measured(model: dict, term: ScaleTerm | None) -> dict:
     """A fit's ``to_dict`` with a measured scale as its first term (its parameter and std)."""
-    if term is None or term.action != "measured":
+    if not is_measured(term):
         return model
     return {**model, "terms": [SCALE_LABEL, *model["terms"]],
             "parameters": {SCALE_LABEL: {SCALE_PARAM: term.scale}, **model["parameters"]},
@@ -136,7 +141,7 @@ def with_measured(model: dict, term: ScaleTerm | None) -> dict:
 
 def named_labels(labels: list, term: ScaleTerm | None) -> list:
     """The named terms' labels, a measured scale first."""
-    return [SCALE_LABEL, *labels] if term is not None and term.action == "measured" else list(labels)
+    return [SCALE_LABEL, *labels] if is_measured(term) else list(labels)
 
 
 def report_scale(report: dict) -> ScaleTerm | None:
@@ -149,7 +154,7 @@ def report_scale(report: dict) -> ScaleTerm | None:
 def named_note(report: dict, label: str) -> str:
     """What a report says beside a named ``label``: for a scale measured on the block, that it was
     (the likelihood ratio did not name it); else nothing."""
-    term = report.get("scale_term")  # an older report (the check a report only) has none
-    if label == SCALE_LABEL and term and term["action"] == "measured":
+    # an older report (the check a report only) has no scale_term
+    if label == SCALE_LABEL and is_measured(report_scale(report)):
         return " (measured on the block's size, not by likelihood ratio)"
     return ""
