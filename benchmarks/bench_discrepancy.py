@@ -37,8 +37,8 @@ ratio under the floor's parametric bootstrap and Gaussian noise, beyond the cali
 value). ``--known-floor`` sizes by the chi^2 power with the floor known exactly instead (the
 sizes until 2026-11-26, 5-10 % smaller). The noise-free noncentrality is ``lambda =
 chi2(baseline) - chi2(baseline + candidate)`` on noise-free data (perfect scanner and F/T
-sensor, the researcher's own reduction) whitened by a reference floor (clean world, 10 repeats
-of the 25 tests, seed 977); the target ``lambda*`` is the effect's pattern at x1 scaled until
+sensor, the researcher's own reduction) whitened by a reference floor (clean world, 200 repeats
+of the 25 tests, seed 977; 10 until 2026-11-29); the target ``lambda*`` is the effect's pattern at x1 scaled until
 it has the power. For an effect without a candidate the global detection test (chi^2 of the
 baseline, df 114, level alpha) is used instead, with the floor known.
 ``lambda`` grows as f^2; f_lim is found by a secant search on log f (at most 6 noise-free

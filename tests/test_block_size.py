@@ -311,7 +311,7 @@ def test_the_check_settles_the_candidate(rng):
         term = scale_term.settle_scale(check, pool)
         assert term.action == action
         kept = [c.label for c in scale_term.settled_pool(term, pool)]
-        assert ("scanner_scale" in kept) == (action == "tested") and "block_offset" in kept
+        assert ("scanner_scale" in kept) == (action == "tested") and "block_offset(rotation)" in kept
         if action == "measured":
             assert term.scale == pytest.approx(np.mean(samples) * 1e-6, rel=1e-9)
             assert term.std == pytest.approx(stats.sem(samples) * 1e-6, rel=1e-9)

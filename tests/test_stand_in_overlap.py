@@ -42,7 +42,7 @@ def _stiffness_column(ctx) -> Candidate:
 def test_overlap_is_the_squared_cosine_to_the_candidates_span(hidden_offset):
     ctx, white, pool = hidden_offset
     by = {c.label: c for c in pool}
-    named = by["block_offset"]
+    named = by["block_offset(rotation)"]
     fit = fit_model(ctx, white, [named])
     clone = replace(named, label="block_offset (clone)")
     others = [clone, _stiffness_column(ctx), *(c for c in pool if c is not named)]
@@ -51,7 +51,7 @@ def test_overlap_is_the_squared_cosine_to_the_candidates_span(hidden_offset):
     assert overlap["joint 1's compliance"] < 1e-9
     ms = ctx.measurements
     keep = null_space(white(stack([m.jacobian for m in ms], [m.wrench for m in ms])).T)  # stiffness-free
-    theta = np.array(list(fit.theta["block_offset"].values()))
+    theta = np.array(list(fit.theta["block_offset(rotation)"].values()))
     pattern = keep.T @ (white(named.columns(ctx, fit.compliance)) @ theta)
     for cand in pool:
         if cand is named:
@@ -66,9 +66,9 @@ def test_the_search_records_each_rounds_overlap(hidden_offset):
     """The chosen term's round carries every other candidate's overlap (its own row: None)."""
     ctx, white, pool = hidden_offset
     chosen, steps, _ = name_effects(ctx, white, pool)
-    assert [c.label for c in chosen] == ["block_offset"]
+    assert [c.label for c in chosen] == ["block_offset(rotation)"]
     rows = {r["label"]: r["overlap"] for r in steps[0].tests}
-    assert rows["block_offset"] is None
+    assert rows["block_offset(rotation)"] is None
     fit = fit_model(ctx, white, chosen)
     again = stand_in_overlap(ctx, white, fit, chosen[0], [], [c for c in pool if c is not chosen[0]])
     for label, value in again.items():
@@ -92,13 +92,17 @@ def test_a_confusable_round_records_the_runner_ups_overlap(hidden_offset):
     """A clone of the hidden block offset ties with it (a confusable round): the round carries the
     shares of the runner-up's pattern too, each the squared cosine to the candidate's span."""
     ctx, white, pool = hidden_offset
-    clone = replace(next(c for c in pool if c.label == "block_offset"), label="block_offset (clone)")
+    clone = replace(
+        next(c for c in pool if c.label == "block_offset(rotation)"), label="block_offset (clone)"
+    )
     chosen, steps, _ = name_effects(ctx, white, [*pool, clone], max_terms=1)
     first = steps[0]
-    assert (first.chosen, first.runner_up) == ("block_offset", "block_offset (clone)")
+    assert (first.chosen, first.runner_up) == ("block_offset(rotation)", "block_offset (clone)")
     assert first.delta == pytest.approx(0.0, abs=1e-6)
     rows = {r["label"]: r["runner_overlap"] for r in first.tests}
-    assert rows["block_offset (clone)"] is None and rows["block_offset"] == pytest.approx(1.0, abs=1e-9)
+    assert rows["block_offset (clone)"] is None and rows["block_offset(rotation)"] == pytest.approx(
+        1.0, abs=1e-9
+    )
     ms = ctx.measurements
     keep = null_space(white(stack([m.jacobian for m in ms], [m.wrench for m in ms])).T)
     fit = fit_model(ctx, white, [clone])
@@ -106,7 +110,7 @@ def test_a_confusable_round_records_the_runner_ups_overlap(hidden_offset):
         white(clone.columns(ctx, fit.compliance)) @ np.array(list(fit.theta[clone.label].values()))
     )
     for cand in pool:
-        if cand.label == "block_offset":
+        if cand.label == "block_offset(rotation)":
             continue
         span = keep.T @ white(cand.columns(ctx, fit.compliance))
         expected = np.cos(subspace_angles(pattern[:, None], span)[0]) ** 2

@@ -43,8 +43,8 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
       place is among the :data:`MAX_RIVALS`: the third place, or the fourth when a plausible
       candidate below the level ranks between the chosen term and the runner-up. Without that
       place, a round with four close models tested the scale world's link 2 against the scale
-      and two others and never against the ``block_offset`` that reproduces 96 % of the scale's
-      pattern, which won after the round;
+      and two others and never against the block offset that reproduces 96 % of the scale's
+      pattern (its translation, ``block_offset(translation)``, 95 %), which won after the round;
     * *marginal*, a weak name: the chosen term's p-value is above its round's level over
       :data:`MARGINAL_FACTOR`; the rivals are the round's baseline and the plausible candidates
       within :data:`CONFUSABLE_MARGIN` of the chosen one;
@@ -55,8 +55,8 @@ def rivals_from_report(report: dict, alpha: float | None = None) -> dict | None:
     for its lead (the chosen term, else the best plausible one): those that reproduce at least
     :data:`STAND_IN_R2` of its fitted pattern (the round's ``overlap``), largest share first. The
     evidence is weak, so a design that only asks "is the lead there?" can end naming the stand-in
-    it never tested against (a 6-parameter ``block_offset`` reproduces 96 % of a
-    ``scanner_scale``'s pattern, and won after such rounds).
+    it never tested against (a block offset's translation reproduces 95 % of a
+    ``scanner_scale``'s pattern, and a block offset won after such rounds).
 
     A round whose chosen term the stepwise search later dropped (``report["dropped"]``: it stood in
     for terms named after it) is skipped, and dropped terms leave every round's baseline. At most

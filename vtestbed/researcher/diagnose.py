@@ -217,9 +217,9 @@ def _drop_redundant(ctx, white, chosen: list, current: ModelFit, alpha: float, n
     forward round from those terms would test it (:func:`step_level` over the ``n_pool -
     len(others)`` candidates then in play). The least significant term above its
     level is dropped, and the re-test repeats. A term named early can stand in for a
-    combination of two effects (a 6-parameter ``block_offset`` fits a wrist coupling plus a
-    sensor misalignment better than either alone); once both are named, its likelihood ratio
-    falls to the noise. Returns the kept terms, their fit, and the drops (dicts).
+    combination of two effects (a block offset's rotation and translation together, 6 parameters,
+    fit a wrist coupling plus a sensor misalignment better than either alone); once both are named,
+    its likelihood ratio falls to the noise. Returns the kept terms, their fit, and the drops (dicts).
     """
     dropped = []
     while len(chosen) > 1:

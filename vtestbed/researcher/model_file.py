@@ -73,6 +73,8 @@ def default_candidates(statics: str) -> tuple[str, ...]:
 
 
 MODEL_FORMAT = "vtestbed-model/1"
+# Labels that model files wrote before the term was split into parts (2026-11-29): read as all of them
+SPLIT_TERMS = {"block_offset": ("block_offset(rotation)", "block_offset(translation)")}
 
 
 def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
@@ -96,6 +98,7 @@ def read_model(path, robot, kin) -> tuple[list, str]:
     terms = data.get("terms")
     if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
         raise DatasetError(f"{path}: terms must be a list of candidate labels")
+    terms = [part for t in terms for part in SPLIT_TERMS.get(t, (t,))]
     unknown = [t for t in terms if t not in pool]
     if unknown:
         raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")

@@ -2,7 +2,7 @@
 
 The stiffness model tells a scanner scale error from stiffer joints only by the rotations, which
 the scale leaves alone: near the naming's detection limit (about 60-90 times the realistic 100
-ppm) a 6-parameter ``block_offset`` reproduces 96 % of its pattern, and after one round of
+ppm) a block offset's translation reproduces 95 % of its pattern, and after one round of
 discrimination tests 6 of 150 seeds still named the wrong one (docs/discrepancy.md). The block's
 apparent edges (:mod:`.block_size`) measure the scale directly, with a standard error of about
 9 ppm over the paper's tests. So where that check decides, the naming does not test the
