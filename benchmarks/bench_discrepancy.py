@@ -217,14 +217,14 @@ def main() -> None:
     cal = {n: cal[n] for n in sorted(cal, key=order.get)}
     print(f"# bench_discrepancy: {_discrepancy_worlds.SCENARIO.name}, {seeds} seeds per world (seed {SEED0}+k), r = {REPEATS} "
           f"repeats per test, {_discrepancy_worlds.LOADED_REPEATS} loaded repeats, alpha = {ALPHA}, {args.statics} statics, {args.workers} workers; wall {wall:.0f} s")  # fmt: skip
+    if args.out:  # before the tables: a run's records outlive a fault in the report
+        args.out.write_text(
+            json.dumps({"worlds": worlds, "calibration": cal, "results": results}, default=float)
+        )
     report(worlds, results, cal, overlap, seeds, wall, t_prep)
     errors = [(k, r) for k, rs in results.items() for r in rs if "error" in r]
     for k, r in errors[:3]:
         print(f"\nERROR in {k}, seed {r['seed']}: {r['error']}\n{r['trace']}")
-    if args.out:
-        args.out.write_text(
-            json.dumps({"worlds": worlds, "calibration": cal, "results": results}, default=float)
-        )
 
 
 if __name__ == "__main__":

@@ -253,7 +253,7 @@ def _block_offset(part: str) -> Candidate:
     (``dr x v``, the deflection's translation of about 0.7 mm on the paper's tests); the
     translation moves the scanned point by ``w x dt`` (its rotation of about 2 mrad), a pattern
     the stiffnesses partly absorb. Whitened, a 1 mm shift shows about as much as a 1.4 mrad
-    (0.08 deg) turn, so a block mounted as loosely as effects.md's realistic one (0.5 mm, 0.28
+    (0.08 deg) turn, so a block mounted as loosely as docs/effects.md's realistic one (0.54 mm, 0.27
     deg) shows through its rotation: near its detection limit 99 % of the noise-free likelihood
     ratio (31.9 of 32.3) is the rotation's, and one 6-parameter term spent 3 degrees of freedom on
     a translation its test could not see (docs/discrepancy_benchmark.md, "The block offset's two
