@@ -129,6 +129,15 @@ def expected_label(effect) -> str:
     return effect.name
 
 
+def true_labels(effect) -> frozenset[str]:
+    """Every candidate label that describes ``effect`` as hidden: its :func:`expected_label`, and
+    for the block offset its translation too (the world's offset turns and shifts the block, so a
+    name of either part is right; the search names both where both are significant)."""
+    if effect.name == "block_offset":
+        return frozenset(("block_offset(rotation)", "block_offset(translation)"))
+    return frozenset((expected_label(effect),))
+
+
 def world_key(name: str | None, size: str) -> str:
     return "clean" if name is None else f"{name} @ {size}"
 

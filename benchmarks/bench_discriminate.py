@@ -2,7 +2,8 @@
 
 Run: .venv/bin/python benchmarks/bench_discriminate.py [--seeds 10] [--first 1] [--extra-tests 10]
      [--scenario scenarios/kr60_confusable.toml] [--factor F | --world a,b] [--always] [--rounds R]
-     [--separation [T]] [--max-extra-tests K] [--workers 1] [--rerun LOG [--reasons marginal]]
+     [--separation [T]] [--max-extra-tests K] [--loaded-repeats R] [--workers 1]
+     [--rerun LOG [--reasons marginal]]
      [--out /tmp/bench_discriminate]
 
 Each seed runs :func:`vtestbed.discovery.discover` on the scenario (by default
@@ -49,12 +50,17 @@ from vtestbed.world.effects import EFFECTS
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def scenario_for(path: str, seed: int, factor: float | None, world: tuple[str, ...] = ()):
+def scenario_for(
+    path: str, seed: int, factor: float | None, world: tuple[str, ...] = (), loaded_repeats: int | None = None
+):
     """The scenario at ``path`` with ``seed``; with ``factor``, each hidden effect at ``factor`` times
     its realistic default size (the factors ``bench_discrepancy.py --limit-power`` prints); with
     ``factor = 0`` the clean world (nothing hidden); ``world`` (effect names) replaces the hidden
-    effects by those effects at their realistic defaults."""
+    effects by those effects at their realistic defaults; ``loaded_repeats`` (None: the
+    scenario's) sets ``[scanner] loaded_repeats``, the further scans of the loaded block."""
     raw = copy.deepcopy(read_scenario_file(path)) | {"seed": seed}
+    if loaded_repeats is not None:
+        raw["scanner"] = raw.get("scanner", {}) | {"loaded_repeats": loaded_repeats}
     if world:
         raw["world"] = {"effects": [{"name": name} for name in world]}
     if factor == 0:
@@ -80,8 +86,9 @@ def run_seed(
     rounds=1,
     separation=None,
     max_extra_tests=None,
+    loaded_repeats=None,
 ) -> dict:
-    sc = scenario_for(path, seed, factor, world)
+    sc = scenario_for(path, seed, factor, world, loaded_repeats)
     folder = Path(out) / f"s{seed}"
     t0 = time.perf_counter()
     try:
@@ -155,6 +162,8 @@ def main() -> None:
     ap.add_argument("--separation", type=float, nargs="?", const=SEPARATION_TARGET, default=None, metavar="T",
                     help="discover --separation: size each round until the predicted separation reaches T")  # fmt: skip
     ap.add_argument("--max-extra-tests", type=int, default=None, help="discover --max-extra-tests")
+    ap.add_argument("--loaded-repeats", type=int, default=None, metavar="R",
+                    help="[scanner] loaded_repeats for every seed (default: the scenario's)")  # fmt: skip
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="/tmp/bench_discriminate")
     ap.add_argument("--keep", action="store_true")
@@ -179,6 +188,10 @@ def main() -> None:
         kept = {seed: row for seed, row in kept.items()
                 if row.get("reason") not in reasons and row.get("rounds_run", 1) <= 1}  # fmt: skip
     world = tuple(name.strip() for name in args.world.split(",") if name.strip())
+    try:  # the options' scenario, checked once: a bad value is the run's error, not every seed's
+        scenario_for(args.scenario, args.first, args.factor, world, args.loaded_repeats)
+    except VtestbedError as exc:
+        ap.exit(2, f"error: {exc}\n")
     task = (
         args.scenario,
         args.factor,
@@ -190,6 +203,7 @@ def main() -> None:
         args.rounds,
         args.separation,
         args.max_extra_tests,
+        args.loaded_repeats,
     )
     rows = []
     with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:

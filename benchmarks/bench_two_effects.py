@@ -4,18 +4,22 @@ Worlds: ``scenarios/kr60_paper.toml`` with two effects hidden together, each at 
 default (docs/effects.md), for the pairs of the effects the workflow detects alone at that size
 (docs/discrepancy_benchmark.md). Every trial is exactly a trial of
 ``benchmarks/bench_discrepancy.py`` (same noise draws, 3 repeat scans per test, exact statics,
-alpha 0.01, stepwise naming until nothing is significant). Prints per pair: both named, one named,
-a wrong name among those named (the third names), nothing, with 95 % Clopper-Pearson intervals,
-and the terms the backward step dropped (named in an early round, redundant once both effects
-were named: diagnose.name_effects).
+alpha 0.01, stepwise naming until nothing is significant). Prints per pair: both named, one named
+(and which), a wrong name among those named (the third names), nothing, with 95 % Clopper-Pearson
+intervals, and the terms the backward step dropped (named in an early round, redundant once both
+effects were named: diagnose.name_effects). An effect counts as named when one of its labels is
+(``_discrepancy_worlds.true_labels``: the block offset's rotation or its translation).
+``--out FILE`` writes every trial's record as ``bench_discrepancy.py --out`` does.
 
     .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
+        [--loaded-repeats 3] [--out two.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import multiprocessing
+import os
 import sys
 import time
 from collections import Counter
@@ -23,8 +27,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_discrepancy as bench  # noqa: E402  (sets the BLAS threads to 1 before numpy)
+import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
+import bench_discrepancy as bench  # noqa: E402
 
+from vtestbed.files import write_json_atomic  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 PAIRS = (
@@ -36,7 +42,9 @@ PAIRS = (
 
 
 def tally(pair: str, records: list[dict]) -> dict:
-    expected = {bench.expected_label(EFFECTS[n]()) for n in pair.split("+")}
+    # each hidden effect's labels: one named counts it named; a label outside them is a third name
+    per_effect = [_discrepancy_worlds.true_labels(EFFECTS[n]()) for n in pair.split("+")]
+    expected = frozenset().union(*per_effect)
     out = {
         "both": 0,
         "one": 0,
@@ -45,15 +53,18 @@ def tally(pair: str, records: list[dict]) -> dict:
         "error": 0,
         "extra": Counter(),
         "dropped": Counter(),
+        "alone": Counter(),  # where one of the two is named: which one
     }
     for r in records:
         if "error" in r:
             out["error"] += 1
             continue
         named = set(r["named"])
-        hit = len(named & expected)
+        hit = sum(bool(named & labels) for labels in per_effect)
         out["both"] += hit == 2
         out["one"] += hit == 1
+        if hit == 1:
+            out["alone"].update(n for n, labels in zip(pair.split("+"), per_effect) if named & labels)
         out["nothing"] += not named
         out["wrong"] += bool(named - expected)
         out["extra"].update(named - expected)
@@ -66,7 +77,16 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--pairs", default=",".join(PAIRS), help="comma-separated a+b effect pairs")
+    parser.add_argument("--out", type=Path, help="write every trial's record to this JSON file too")
+    parser.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS,
+                        help="further scans of the loaded block per test, as bench_discrepancy.py's "
+                             "(default 0: the paper's one loaded scan)")  # fmt: skip
     args = parser.parse_args()
+    if args.loaded_repeats < 0:
+        parser.error(f"--loaded-repeats: {args.loaded_repeats} is negative; valid: 0 or more")
+    # the spawned workers read it from the environment when they import _discrepancy_worlds
+    _discrepancy_worlds.LOADED_REPEATS = args.loaded_repeats
+    os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(args.loaded_repeats)
     pairs = [p.strip() for p in args.pairs.split(",") if p.strip()]
     for pair in pairs:
         bad = [n for n in pair.split("+") if n not in EFFECTS] or ([] if pair.count("+") == 1 else [pair])
@@ -91,18 +111,23 @@ def main() -> None:
                 f"{done}/{len(pairs) * len(seeds)} trials, {time.perf_counter() - t0:.0f} s", file=sys.stderr
             )
     wall = time.perf_counter() - t0
+    if args.out:  # before the tables: a fault in them must not lose the run
+        write_json_atomic(
+            args.out, {"seeds": seeds, "loaded_repeats": args.loaded_repeats, "results": results}
+        )
     print(f"# bench_two_effects: {bench.SCENARIO.name}, {args.seeds} seeds per world (seed {bench.SEED0}+k), "
-          f"realistic sizes, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
+          f"realistic sizes, {args.loaded_repeats} loaded repeats, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
     print(
-        "| hidden pair | n | both named [95 % CI] | one named | a third name too | nothing | errors | third names (count) "
-        "| dropped by the backward step (count) |"
+        "| hidden pair | n | both named [95 % CI] | one named (which) | a third name too | nothing | errors "
+        "| third names (count) | dropped by the backward step (count) |"
     )
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |")
+    print("| --- | ---: | ---: | --- | ---: | ---: | ---: | --- | --- |")
     for pair in pairs:
         t, n = tally(pair, results[pair]), len(results[pair])
         lo, hi = bench.clopper_pearson(t["both"], n)
         print(f"| {pair.replace('+', ' + ')} | {n} | {100 * t['both'] / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] "
-              f"| {t['one']} | {t['wrong']} | {t['nothing']} | {t['error']} "
+              f"| {t['one']}{' (' + ', '.join(f'{k} {v}' for k, v in t['alone'].most_common()) + ')' if t['one'] else ''} "
+              f"| {t['wrong']} | {t['nothing']} | {t['error']} "
               f"| {', '.join(f'{k} ({v})' for k, v in t['extra'].most_common(3))} "
               f"| {', '.join(f'{k} ({v})' for k, v in t['dropped'].most_common(3))} |")  # fmt: skip
     for pair in pairs:

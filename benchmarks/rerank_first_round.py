@@ -14,6 +14,11 @@ Rules (among the significant candidates; chi^2 = the baseline's chi^2 minus the 
 - ``press+M``: the fewest parameters among the candidates within M of the lowest held-out error
   (a one-standard-error rule), ties by held-out error.
 
+The last column, ``ceiling``, is what no rule can beat: the trials whose hidden effect is among
+the significant candidates at all (for a world that should name nothing, the trials where no
+candidate is significant). A world whose ceiling is below a target misses it on the first round
+whatever the ranking; the gap between a rule and the ceiling is what the ranking loses.
+
 A second table takes the researcher's view of the same first rounds, under ``diagnose``'s own
 rule: is the first name right, and does the report say it is *undecided* (what ``vtestbed
 discover`` acts on: :func:`vtestbed.design.rivals.rivals_from_report`, a runner-up within the
@@ -59,6 +64,13 @@ def pick(rows: list[dict], base_chi2: float, rule: str) -> str | None:
     return min(significant, key=keys[rule])["name"]
 
 
+def within_reach(rows: list[dict], want: str | None) -> bool:
+    """Could some rule pick ``want`` from ``rows``: is it among the significant candidates (for
+    ``want`` None: is none significant)?"""
+    names = {r["name"] for r in rows if r["significant"]}
+    return want in names if want is not None else not names
+
+
 def expected_name(world: str) -> str | None:
     """The name a right first pick gives in ``world`` ("<effect> @ <size>")."""
     effect = world.split(" @ ")[0]
@@ -84,7 +96,7 @@ def main() -> None:
 
 def tally(results: dict) -> list[str]:
     """The table's lines: per world, how often each rule's first pick is the hidden effect."""
-    lines = [f"{'world':42s}" + "".join(f"{rule:>9s}" for rule in RULES) + "   trials"]
+    lines = [f"{'world':42s}" + "".join(f"{rule:>9s}" for rule in (*RULES, "ceiling")) + "   trials"]
     total = Counter()
     for world, trials in results.items():
         right, n = Counter(), 0
@@ -94,9 +106,10 @@ def tally(results: dict) -> list[str]:
             n += 1
             for rule in RULES:
                 right[rule] += pick(trial["round1"], trial["chi2"], rule) == expected_name(world)
+            right["ceiling"] += within_reach(trial["round1"], expected_name(world))
         total.update(right)
-        lines.append(f"{world:42s}" + "".join(f"{right[rule]:9d}" for rule in RULES) + f"   {n:6d}")
-    lines.append(f"{'total':42s}" + "".join(f"{total[rule]:9d}" for rule in RULES))
+        lines.append(f"{world:42s}" + "".join(f"{right[r]:9d}" for r in (*RULES, "ceiling")) + f"   {n:6d}")
+    lines.append(f"{'total':42s}" + "".join(f"{total[r]:9d}" for r in (*RULES, "ceiling")))
     return lines
 
 

@@ -87,3 +87,27 @@ def test_the_script_tallies_a_record_and_refuses_a_bad_one(tmp_path):
     (bad := tmp_path / "bad.json").write_text("[1, 2]")
     out = subprocess.run([sys.executable, str(script), str(bad)], capture_output=True, text=True)
     assert out.returncode == 2 and "bad.json" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_the_ceiling_counts_the_hidden_effect_among_the_significant_whatever_its_rank():
+    """A hidden link that every rule ranks second (a lower held-out error, BIC, AIC and p-value for
+    the rival) is still within reach; a trial with nothing significant is not, and on a clean world it
+    is the right outcome."""
+    second = [
+        {**row("link_compliance(link 2)", "link_compliance", 1e-6, 120.0, bic=150.0), "lr": 30.0},
+        {**row("block_offset", "block_offset", 1e-9, 100.0, bic=140.0), "lr": 40.0},
+    ]
+    none = [
+        row("link_compliance(link 2)", "link_compliance", 0.2, 100.0),
+        row("block_offset", "block_offset", 0.5, 140.0),
+    ]
+    results = {
+        "link_compliance @ limit": [{"chi2": 150.0, "round1": second}, {"chi2": 150.0, "round1": none}],
+        "clean": [{"chi2": 150.0, "round1": none}, {"chi2": 150.0, "round1": second}],
+    }
+    lines = rerank.tally(results)
+    counts = {ln.split()[0]: [int(v) for v in ln.split() if v.isdigit()] for ln in lines[1:]}
+    # the rules' picks: block_offset in the first trial, nothing in the second
+    assert counts["link_compliance"] == [0] * len(rerank.RULES) + [1, 2]
+    assert counts["clean"] == [1] * len(rerank.RULES) + [1, 2]
+    assert counts["total"] == [1] * len(rerank.RULES) + [2]  # no trial count in the total row

@@ -56,9 +56,9 @@ from .researcher.diagnose import (
 )
 from .researcher.discrepancy import diagnose
 from .researcher.kinematics import ArmKinematics
+from .researcher.model_file import DEFAULT_STATICS, baseline_statics
 from .researcher.scale_term import ScaleTerm, corrected, report_scale
 from .researcher.scan_mean import load_with_floor
-from .researcher.statics import ExactStatics
 from .run_record import versions
 from .scenario import Scenario, load_scenario
 from .scenario_writer import proposal_text, scenario_text
@@ -119,8 +119,8 @@ def _researcher_view(root: Path, alpha: float, scale: ScaleTerm | None = None):
     setup, ms, floor = load_with_floor(root, alpha)
     kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
     ident = corrected([m for m in ms if m.group == "identification"], scale)
-    # the diagnosis's baseline: the clean world's exact statics, so that the rivals' fits are its fits
-    ctx = ModelContext(ident, setup, kin, ExactStatics(kin, setup))
+    # the diagnosis's baseline (discover diagnoses with the default), so that the rivals' fits are its fits
+    ctx = ModelContext(ident, setup, kin, baseline_statics(DEFAULT_STATICS, kin, setup))
     white = Whitener(floor)
     return ctx, white, researcher_pool(ctx, white)
 

@@ -21,9 +21,11 @@ def _cmd_diagnose(args) -> int:
             "candidate names without it"
         )
     require_level(args.alpha, "--alpha")
-    rank = {} if args.rank is None else {"rank_by": args.rank}  # the library's default otherwise
-    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out, statics=args.statics,
-                      scale_tolerance_ppm=args.scale_tolerance, **rank)  # fmt: skip
+    # the library's defaults where the option is not given
+    rank = {} if args.rank is None else {"rank_by": args.rank}
+    statics = {} if args.statics is None else {"statics": args.statics}
+    report = diagnose(args.dataset, alpha=args.alpha, names=names, out=args.out,
+                      scale_tolerance_ppm=args.scale_tolerance, **rank, **statics)  # fmt: skip
     html = None
     if args.out:
         from ..reports import write_report
@@ -59,7 +61,7 @@ def register(sub) -> None:
         "--statics paper, the clean world's gravity_stiffness, load_dependent_jacobian and exact_kinematics too; "
         "none: the detection alone)",
     )
-    p.add_argument("--statics", default="exact", choices=("exact", "paper"),
+    p.add_argument("--statics", choices=("exact", "paper"),
                    help="baseline: the paper's model with the clean world's exact statics (default), or as printed")  # fmt: skip
     p.add_argument("--rank", choices=("press", "bic"), help="how to rank the significant candidates: press (their leave-one-test-out "
                    "prediction error, the default) or bic")  # fmt: skip

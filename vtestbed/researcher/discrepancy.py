@@ -38,7 +38,14 @@ from .diagnose import (
 from .discrepancy_plots import plot_effect, plot_gap, plot_patterns
 from .kinematics import ArmKinematics
 from .loaded_scatter import LoadedScatter
-from .model_file import baseline_statics, default_candidates, model_file, require_names, require_outside
+from .model_file import (
+    DEFAULT_STATICS,
+    baseline_statics,
+    default_candidates,
+    model_file,
+    require_names,
+    require_outside,
+)
 from .naming_run import run_naming
 from .scale_term import named_labels, named_note, report_scale, with_measured
 from .scan_mean import load_with_floor
@@ -49,7 +56,7 @@ def diagnose(
     alpha: float = DEFAULT_ALPHA,
     names=None,
     out=None,
-    statics: str = "exact",
+    statics: str = DEFAULT_STATICS,
     rank_by: str = DEFAULT_RANK,
     scale_tolerance_ppm: float = block_size.SCALE_TOLERANCE_PPM,
 ) -> dict:

@@ -30,6 +30,7 @@ from .scan_mean import load_with_floor
 from .statics import ExactStatics
 
 STATICS = ("exact", "paper")
+DEFAULT_STATICS = "exact"
 
 
 def require_outside(kind: str, terms, where: str) -> None:
@@ -77,7 +78,7 @@ MODEL_FORMAT = "vtestbed-model/1"
 SPLIT_TERMS = {"block_offset": ("block_offset(rotation)", "block_offset(translation)")}
 
 
-def model_file(report: dict, robot: str, statics: str = "exact") -> dict:
+def model_file(report: dict, robot: str, statics: str = DEFAULT_STATICS) -> dict:
     """The identified model as a file records it: the robot, its statics and the named terms."""
     return {"format": MODEL_FORMAT, "robot": robot, "statics": statics, "terms": list(report["named"]),
             "parameters": report["model"]["parameters"]}  # fmt: skip
@@ -102,7 +103,7 @@ def read_model(path, robot, kin) -> tuple[list, str]:
     unknown = [t for t in terms if t not in pool]
     if unknown:
         raise DatasetError(f"{path}: terms: unknown term {unknown[0]!r}; valid terms: {', '.join(pool)}")
-    statics = data.get("statics", "exact")
+    statics = data.get("statics", DEFAULT_STATICS)
     if statics not in STATICS:
         raise DatasetError(f"{path}: statics = {statics!r}; valid: {', '.join(STATICS)}")
     require_outside(statics, [pool[t].name for t in terms], f"{path}: terms (statics = 'exact')")
