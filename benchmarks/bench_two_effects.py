@@ -9,10 +9,12 @@ alpha 0.01, stepwise naming until nothing is significant). Prints per pair: both
 intervals, and the terms the backward step dropped (named in an early round, redundant once both
 effects were named: diagnose.name_effects). An effect counts as named when one of its labels is
 (``_discrepancy_worlds.true_labels``: the block offset's rotation or its translation).
-``--out FILE`` writes every trial's record as ``bench_discrepancy.py --out`` does.
+``--out FILE`` writes every trial's record as ``bench_discrepancy.py --out`` does;
+``--noise-free`` runs no trials and prints, per pair, each effect's noise-free likelihood ratio
+alone and beyond the other's, with the power the search's second round has at it.
 
     .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
-        [--loaded-repeats 3] [--out two.json]
+        [--loaded-repeats 3] [--out two.json] [--noise-free]
 """
 
 from __future__ import annotations
@@ -29,8 +31,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import bench_discrepancy as bench  # noqa: E402
+from scipy.stats import chi2, ncx2  # noqa: E402
 
 from vtestbed.files import write_json_atomic  # noqa: E402
+from vtestbed.researcher.diagnose import MAX_TERMS, Whitener, fit_model, identifiable, step_level  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 PAIRS = (
@@ -72,12 +76,59 @@ def tally(pair: str, records: list[dict]) -> dict:
     return out
 
 
+def noise_free_overlap(pair: str, white) -> list[dict]:
+    """Noise-free, per effect of ``pair`` at its realistic size: its label's likelihood ratio alone
+    and beyond the other effect's label, with its degrees of freedom and the power of the search's
+    second round at that noncentrality (its level ``diagnose.step_level`` with one term named, the
+    floor known). What the first pass can do for the effect named second."""
+    names = pair.split("+")
+    prepared, pool = _discrepancy_worlds.prepared_world(pair, 1.0)
+    measured = _discrepancy_worlds.noise_free(prepared, list(prepared.tests))
+    ctx = _discrepancy_worlds.model_context(
+        [m for m in measured if m.group == "identification"], prepared, "exact"
+    )
+    base = fit_model(ctx, white, [])
+    by_label = {c.label: c for c in identifiable(ctx, white, pool, base.compliance)}
+    own = [by_label.get(_discrepancy_worlds.expected_label(EFFECTS[n]())) for n in names]
+    level = step_level(bench.ALPHA, len(by_label) - 1, 1, MAX_TERMS)
+    rows = []
+    for k, name in enumerate(names):
+        cand, other = own[k], own[1 - k]
+        if cand is None or other is None:  # no candidate of its own (or the other's): nothing to test
+            rows.append({"effect": name, "label": None})
+            continue
+        alone, given, both = (fit_model(ctx, white, terms) for terms in ([cand], [other], [other, cand]))
+        lam, df = given.chi2 - both.chi2, both.rank - given.rank
+        rows.append({"effect": name, "label": cand.label, "chi2": base.chi2, "alone": base.chi2 - alone.chi2,
+                     "beyond_other": lam, "df": df, "level": level,
+                     "power": float(ncx2.sf(chi2.isf(level, df), df, lam))})  # fmt: skip
+    return rows
+
+
+def print_noise_free(pairs: list[str]) -> None:
+    white = Whitener(_discrepancy_worlds.reference_floor(_discrepancy_worlds.REF_REPEATS))
+    print(
+        "| hidden pair | effect (label) | likelihood ratio alone | beyond the other's | df | power, second round (level) |"
+    )
+    print("| --- | --- | ---: | ---: | ---: | ---: |")
+    for pair in pairs:
+        for r in noise_free_overlap(pair, white):
+            if r["label"] is None:
+                print(f"| {pair} | {r['effect']} (no candidate) | - | - | - | - |")
+                continue
+            print(f"| {pair} (chi^2 {r['chi2']:.1f}) | {r['effect']} ({r['label']}) | {r['alone']:.1f} "
+                  f"| {r['beyond_other']:.1f} | {r['df']} | {100 * r['power']:.0f} % ({r['level']:.1e}) |")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--pairs", default=",".join(PAIRS), help="comma-separated a+b effect pairs")
     parser.add_argument("--out", type=Path, help="write every trial's record to this JSON file too")
+    parser.add_argument("--noise-free", action="store_true",
+                        help="print each pair's noise-free likelihood ratios (each effect alone and beyond the "
+                             "other's) and the second round's power, and run no trials")  # fmt: skip
     parser.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS,
                         help="further scans of the loaded block per test, as bench_discrepancy.py's "
                              "(default 0: the paper's one loaded scan)")  # fmt: skip
@@ -94,6 +145,9 @@ def main() -> None:
             parser.error(
                 f"--pairs: {bad[0]!r} is not a pair of effects a+b; valid effects: {', '.join(EFFECTS)}"
             )
+    if args.noise_free:
+        print_noise_free(pairs)
+        return
     seeds = [bench.SEED0 + k for k in range(args.seeds)]
     t0 = time.perf_counter()
     results: dict[str, list[dict]] = {p: [] for p in pairs}

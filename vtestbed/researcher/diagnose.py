@@ -182,6 +182,9 @@ def round_stand_ins(rnd: dict, lead: str) -> list[tuple[str, float]]:
     return sorted(alike, key=lambda pair: -pair[1])
 
 
+MAX_TERMS = 3  # the most terms the stepwise search names (name_effects)
+
+
 def step_level(alpha: float, n_candidates: int, n_named: int, max_terms: int) -> float:
     """The level of one forward round's tests: Bonferroni over the ``n_candidates`` in play.
 
@@ -268,7 +271,7 @@ def name_effects(
     white: Whitener,
     pool: list[Candidate],
     alpha: float = DEFAULT_ALPHA,
-    max_terms: int = 3,
+    max_terms: int = MAX_TERMS,
     rank_by: str = DEFAULT_RANK,
 ) -> tuple[list[Candidate], list[Step], ModelFit]:
     """Stepwise selection: forward by likelihood ratio (Bonferroni at ``alpha``), the significant
