@@ -46,6 +46,8 @@ PAIRS = (
 
 
 def tally(pair: str, records: list[dict]) -> dict:
+    """Counts over the trials of ``pair`` ("a+b"): both named, one named (and which), nothing, a
+    third name (a label of neither), failed trials, and the terms the backward step dropped."""
     # each hidden effect's labels: one named counts it named; a label outside them is a third name
     per_effect = [_discrepancy_worlds.true_labels(EFFECTS[n]()) for n in pair.split("+")]
     expected = frozenset().union(*per_effect)
