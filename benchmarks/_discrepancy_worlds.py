@@ -31,7 +31,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
     DEFAULT_RANK,
     validation_gap,
 )
-from vtestbed.researcher.model_file import baseline_statics  # noqa: E402
+from vtestbed.researcher.model_file import SPLIT_TERMS, baseline_statics  # noqa: E402
 from vtestbed.researcher.naming_run import run_naming  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
 from vtestbed.researcher.scale_term import named_labels  # noqa: E402
@@ -53,6 +53,15 @@ REPEATS = 3  # repeat scans per test, as scenarios/kr60_hidden_link.toml
 # --loaded-repeats: scans of the loaded block per test beyond its own (0: the paper's one scan;
 # an environment variable so that the spawned workers see it too)
 LOADED_REPEATS = int(os.environ.get("VTESTBED_BENCH_LOADED_REPEATS", "0"))
+
+
+def set_loaded_repeats(repeats: int) -> None:
+    """``LOADED_REPEATS`` here and in the environment, which the spawned workers read on import."""
+    global LOADED_REPEATS
+    LOADED_REPEATS = repeats
+    os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(repeats)
+
+
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
 # The reference floor (only for choosing f_lim): 200 repeats of the 25 tests, 5000 samples, so its
 # variances err by about 2 %. With 10 repeats (until 2026-11-29) they erred by about 9 % (the floor of
@@ -130,12 +139,11 @@ def expected_label(effect) -> str:
 
 
 def true_labels(effect) -> frozenset[str]:
-    """Every candidate label that describes ``effect`` as hidden: its :func:`expected_label`, and
-    for the block offset its translation too (the world's offset turns and shifts the block, so a
-    name of either part is right; the search names both where both are significant)."""
-    if effect.name == "block_offset":
-        return frozenset(("block_offset(rotation)", "block_offset(translation)"))
-    return frozenset((expected_label(effect),))
+    """Every candidate label that describes ``effect`` as hidden: its :func:`expected_label`, or
+    for a term split into parts every part (``model_file.SPLIT_TERMS``: the block offset's world
+    turns and shifts the block, so a name of either part is right; the search names both where
+    both are significant)."""
+    return frozenset(SPLIT_TERMS.get(effect.name, (expected_label(effect),)))
 
 
 def world_key(name: str | None, size: str) -> str:

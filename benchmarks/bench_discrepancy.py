@@ -138,8 +138,7 @@ def main() -> None:
     args = parser.parse_args()
     # the workers read them from the environment when they import _discrepancy_worlds
     _discrepancy_worlds.RANK = os.environ["VTESTBED_BENCH_RANK"] = args.rank
-    _discrepancy_worlds.LOADED_REPEATS = args.loaded_repeats
-    os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(args.loaded_repeats)
+    _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     _discrepancy_worlds.SCENARIO = args.scenario.resolve()
     os.environ["VTESTBED_BENCH_SCENARIO"] = str(_discrepancy_worlds.SCENARIO)
     names = [n.strip() for n in args.effects.split(",") if n.strip()]

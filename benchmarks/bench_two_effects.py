@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing
-import os
 import sys
 import time
 from collections import Counter
@@ -85,10 +84,7 @@ def noise_free_overlap(pair: str, white) -> list[dict]:
     floor known). What the first pass can do for the effect named second."""
     names = pair.split("+")
     prepared, pool = _discrepancy_worlds.prepared_world(pair, 1.0)
-    measured = _discrepancy_worlds.noise_free(prepared, list(prepared.tests))
-    ctx = _discrepancy_worlds.model_context(
-        [m for m in measured if m.group == "identification"], prepared, "exact"
-    )
+    ctx = _discrepancy_worlds.model_context(_discrepancy_worlds.noise_free(prepared), prepared, "exact")
     base = fit_model(ctx, white, [])
     by_label = {c.label: c for c in identifiable(ctx, white, pool, base.compliance)}
     own = [by_label.get(_discrepancy_worlds.expected_label(EFFECTS[n]())) for n in names]
@@ -137,9 +133,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.loaded_repeats < 0:
         parser.error(f"--loaded-repeats: {args.loaded_repeats} is negative; valid: 0 or more")
-    # the spawned workers read it from the environment when they import _discrepancy_worlds
-    _discrepancy_worlds.LOADED_REPEATS = args.loaded_repeats
-    os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(args.loaded_repeats)
+    _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     pairs = [p.strip() for p in args.pairs.split(",") if p.strip()]
     for pair in pairs:
         bad = [n for n in pair.split("+") if n not in EFFECTS] or ([] if pair.count("+") == 1 else [pair])

@@ -14,7 +14,14 @@ from pathlib import Path
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
-# run apart: the benchmark's module pins the BLAS threads in the environment when imported
+
+def run_with_benchmarks(script: str) -> subprocess.CompletedProcess:
+    """``script`` run apart, benchmarks/ on its path: the benchmark's module pins the BLAS threads
+    in the environment when imported."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(BENCH), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True)
+
+
 SCRIPT = """
 import _discrepancy_worlds as W
 from vtestbed.researcher.candidates import CANDIDATE_NAMES, candidates
@@ -34,8 +41,7 @@ for name in CANDIDATE_NAMES:
 
 
 def test_every_effect_with_a_candidate_maps_to_a_label_of_its_family():
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(BENCH), os.environ.get("PYTHONPATH", "")])}
-    out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env, check=True)
+    out = run_with_benchmarks(SCRIPT)
     lines = [line.split(" | ") for line in out.stdout.strip().splitlines()]
     rows = [head.split(" ", 1) for head, _ in lines]
     assert len(rows) == 9  # candidates.CANDIDATE_NAMES
@@ -69,8 +75,7 @@ print(json.dumps({k: (dict(v) if hasattr(v, "items") else v) for k, v in t.items
 def test_the_two_effect_tally_counts_either_part_of_the_block_offset_as_its_name():
     """bench_two_effects counts a pair named when each effect has one of its labels named; the
     block offset's two parts are one effect (hand-counted records)."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(BENCH), os.environ.get("PYTHONPATH", "")])}
-    out = subprocess.run([sys.executable, "-c", TALLY], capture_output=True, text=True, env=env, check=True)
+    out = run_with_benchmarks(TALLY)
     t = json.loads(out.stdout)
     assert (t["both"], t["one"], t["wrong"], t["nothing"], t["error"]) == (1, 2, 1, 1, 1)
     assert t["alone"] == {"block_offset": 1, "ft_misalignment": 1}
