@@ -26,7 +26,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames  # noqa: E402
-from vtestbed.researcher.candidates import ModelContext, candidates  # noqa: E402
+from vtestbed.researcher.candidates import BLOCK_OFFSET_LABELS, ModelContext, candidates  # noqa: E402
 from vtestbed.researcher.diagnose import (  # noqa: E402
     DEFAULT_RANK,
     validation_gap,
@@ -134,7 +134,7 @@ def expected_label(effect) -> str:
     if effect.name == "nonlinear_joint":
         return f"nonlinear_joint({effect.joint})"
     if effect.name == "block_offset":  # its rotation carries 99 % of what the scans see (candidates.py)
-        return "block_offset(rotation)"
+        return BLOCK_OFFSET_LABELS["rotation"]
     return effect.name
 
 

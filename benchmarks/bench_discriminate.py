@@ -90,6 +90,9 @@ def run_seed(
 ) -> dict:
     sc = scenario_for(path, seed, factor, world, loaded_repeats)
     folder = Path(out) / f"s{seed}"
+    # the seed's folder is this benchmark's scratch: one an interrupted run left (its worker killed
+    # mid-seed) would make discover refuse to mix scenarios, and fail the seed
+    shutil.rmtree(folder, ignore_errors=True)
     t0 = time.perf_counter()
     try:
         r = discover(sc, folder, extra_tests=extra_tests, always=always, rounds=rounds, separation=separation,

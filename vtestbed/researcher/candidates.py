@@ -274,7 +274,7 @@ def _block_offset(part: str) -> Candidate:
         return out
 
     names = ("rx_rad", "ry_rad", "rz_rad") if rotation else ("dx_m", "dy_m", "dz_m")
-    return Candidate("block_offset", f"block_offset({part})", names, columns, bilinear=True)
+    return Candidate("block_offset", BLOCK_OFFSET_LABELS[part], names, columns, bilinear=True)
 
 
 # The DH deviations a deflection test can see: zero offsets of joints 2-6 and the lengths that set
@@ -373,6 +373,8 @@ OPTIONAL_CANDIDATE_NAMES = ("geometric_error",)
 CLEAN_WORLD_CANDIDATE_NAMES = CLEAN_WORLD_TERMS
 COUPLED_PAIRS = ((4, 5), (4, 6), (5, 6), (2, 3))
 BLOCK_OFFSET_PARTS = ("rotation", "translation")
+# The labels of the block offset's parts, e.g. "block_offset(rotation)": the one place they are spelled
+BLOCK_OFFSET_LABELS = {part: f"block_offset({part})" for part in BLOCK_OFFSET_PARTS}
 NONLINEAR_JOINTS = (2, 3)
 
 

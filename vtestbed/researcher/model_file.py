@@ -16,7 +16,7 @@ from ..errors import ConvergenceError, DatasetError, OutOfRangeError, UnknownNam
 from ..robots import load_robot
 from .block_size import scale_check
 from .candidates import (
-    BLOCK_OFFSET_PARTS,
+    BLOCK_OFFSET_LABELS,
     CANDIDATE_NAMES,
     CLEAN_WORLD_CANDIDATE_NAMES,
     OPTIONAL_CANDIDATE_NAMES,
@@ -76,7 +76,7 @@ def default_candidates(statics: str) -> tuple[str, ...]:
 
 MODEL_FORMAT = "vtestbed-model/1"
 # Labels that model files wrote before the term was split into parts (2026-11-29): read as all of them
-SPLIT_TERMS = {"block_offset": tuple(f"block_offset({part})" for part in BLOCK_OFFSET_PARTS)}
+SPLIT_TERMS = {"block_offset": tuple(BLOCK_OFFSET_LABELS.values())}
 
 
 def model_file(report: dict, robot: str, statics: str = DEFAULT_STATICS) -> dict:
