@@ -408,8 +408,10 @@ def test_a_hardening_joint_is_fitted_exactly_not_to_first_order(paper, truth):
     """Noise-free world data, joint 2 hardening at 7.5e9 N*m/rad^3 (its realistic size), gravity on
     and the exact statics as the baseline: the first-order column underestimates k3 by about a
     tenth; the secant through the estimate (``Candidate.design``), from the sag under the arm's
-    weight and the sensor's payload, recovers it to half a percent (measured 0.1 %; without the
-    payload's share of the sag 1.4 % high) and fits the world better."""
+    weight and the sensor's payload, recovers it to 1 % (measured +0.74 %) and fits the world
+    better. Before the F/T readout's fix of 2026-12-01 (the spring's cubic torque left MuJoCo's
+    sensor an acceleration to read) it measured 0.1 %, two errors that cancelled, and 1.4 % high
+    without the payload's share of the sag."""
     from dataclasses import replace
 
     from vtestbed.researcher.statics import ExactStatics
@@ -421,7 +423,7 @@ def test_a_hardening_joint_is_fitted_exactly_not_to_first_order(paper, truth):
     white = Whitener(NoiseFloor(np.diag(SIGMA**2), n_samples=100, n_tests=20))
     (term,) = [c for c in candidates(kin) if c.label == "nonlinear_joint(2)"]
     exact, first = fit_model(ctx, white, [term]), fit_model(ctx, white, [replace(term, secant=False)])
-    assert exact.theta[term.label]["k3_Nm_per_rad3"] == pytest.approx(k3, rel=0.005)
+    assert exact.theta[term.label]["k3_Nm_per_rad3"] == pytest.approx(k3, rel=0.01)
     assert first.theta[term.label]["k3_Nm_per_rad3"] < 0.95 * k3
     assert exact.chi2 < 0.5 * first.chi2
     np.testing.assert_allclose(exact.stiffness, truth.stiffness, rtol=2e-3)

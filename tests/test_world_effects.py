@@ -84,6 +84,59 @@ def test_nonlinear_joint_tangent_stiffness_is_the_analytic_derivative(robot, tru
     assert 3 * default.k3_Nm_per_rad3 * 0.002**2 / truth.stiffness[1] == pytest.approx(0.10, rel=1e-3)
 
 
+def _load_on_sensor(rig: Rig, state) -> np.ndarray:
+    """The closed form of what the F/T sensor carries at a static equilibrium (6,) [N, N*m],
+    sensor frame: the wire's pull at its hook plus the weight of the tool's subtree at its centre
+    of mass, moments about the sensor's origin. The wire is a straight tendon; the masses are the
+    compiled model's."""
+    m, d = rig.model, rig.data
+    tool = m.body(mjcf.TOOL_BODY).id
+    rot, origin = state.sensor_pose[:3, :3], state.sensor_pose[:3, 3]
+    pull = state.wire_tension * state.wire_direction
+    weight = m.body_subtreemass[tool] * m.opt.gravity
+    force = pull + weight
+    torque = np.cross(state.hook_position - origin, pull) + np.cross(d.subtree_com[tool] - origin, weight)
+    return np.concatenate([rot.T @ force, rot.T @ torque])
+
+
+@pytest.mark.parametrize(
+    "effect",
+    [None, JointCoupling(), NonlinearJoint()],
+    ids=["clean", "joint_coupling", "nonlinear_joint"],
+)
+def test_the_force_sensor_reads_the_tools_load_with_joint_level_effects(robot, lab, effect):
+    # A joint-level effect acts in the solver's residual; MuJoCo's F/T sensor reads from its own
+    # forward dynamics. Until 2026-12-01 the readout left the effect's torque out of it, so MuJoCo
+    # saw an unbalanced wrist and the sensor read the tool's inertia times that acceleration too:
+    # 0.35 N and 0.17 N*m off with the realistic coupling, which came out 4 % weak in the fit.
+    rig = Rig(robot, lab, effects=() if effect is None else (effect,))
+    rig.command(np.radians([5, -60, -20, 30, 50, 45]))
+    rig.hook("hook_x", "ring_5")
+    state = rig.tighten(250.0)
+    expected = _load_on_sensor(rig, state)
+    np.testing.assert_allclose(state.sensor_wrench[:3], expected[:3], atol=1e-6)  # N, of ~250
+    np.testing.assert_allclose(state.sensor_wrench[3:], expected[3:], atol=1e-6)  # N*m, of ~50
+    assert np.max(np.abs(state.deflection)) > 1e-4  # a loaded arm: the effects have torque to add
+
+
+def test_the_force_sensor_reads_an_external_wrench_at_the_block(robot, lab):
+    # the wrench a test applies in place of the wire (gravity off, wire slack): the sensor carries
+    # exactly it, moved from the block's origin to its own (the closed form written out here)
+    rig = Rig(robot, lab, gravity=False)
+    rig.command(POSE)
+    rig.slacken_wire()
+    torque = np.array([3.0, -2.0, 1.5])
+    rig.apply_external_wrench(FORCE, torque)
+    state = rig.solve()
+    rig.apply_external_wrench(None)
+    rot, origin = state.sensor_pose[:3, :3], state.sensor_pose[:3, 3]
+    about_sensor = torque + np.cross(state.block_pose[:3, 3] - origin, FORCE)
+    np.testing.assert_allclose(
+        state.sensor_wrench, np.concatenate([rot.T @ FORCE, rot.T @ about_sensor]), atol=1e-9
+    )
+    np.testing.assert_allclose(rig.solve().sensor_wrench, 0.0, atol=1e-9)  # cleared: nothing left in MuJoCo
+
+
 def _balancer_torque(robot, effect: GravityCompensator, theta2: float) -> float:
     """Closed form written out here: spring between a point on link 1 and a point on link 2."""
     j = robot.joints[1]

@@ -102,6 +102,7 @@ class Rig:
         self._applied = np.zeros(m.nv)
         self._spring_tangent = statics.joint_spring_tangent(m)  # constant: the bulk of the tangent
         self._external: tuple[np.ndarray, np.ndarray] | None = None
+        self._external_in_data = False  # data.xfrc_applied holds it (set at the last readout)
         self.hook_name = next(iter(self.lab.block.hooks))
         self.anchor_name = next(iter(self.lab.table.anchors))
         self._q_cmd = np.zeros(self.robot.dof)
@@ -397,11 +398,37 @@ class Rig:
         return self._readout(d.qpos.copy(), float(np.max(np.abs(self._residual(d.qpos.copy())))), 0)
 
     # ------------------------------------------------------------------ readout
+    def _forces_for_readout(self, qpos: np.ndarray) -> None:
+        """Give MuJoCo the forces the residual adds in Python, so that its forward dynamics sees the
+        equilibrium too (``qacc`` = 0) before the F/T sensor is read.
+
+        MuJoCo's force/torque sensors are acceleration-stage sensors: the wrench a body transmits
+        comes from the subtree's accelerations and the body forces on it. The joint-level effects
+        (a coupling, a cubic spring) act through the residual only; left out of ``qfrc_applied``
+        they leave MuJoCo an unbalanced joint torque, hence an acceleration, and the sensor read
+        the subtree's inertia times it (0.35 N and 0.17 N*m with the realistic coupling at 250 N
+        until 2026-12-01: docs/effects.md, tests/test_world_effects.py). Joint torques reach the sensor only through that acceleration, so with
+        them applied it reads what the tool really transmits. An external wrench (a test's stand-in
+        for the wire) is a body force on the tool, where the sensor sees it.
+        """
+        d = self.data  # nothing else sets these two: the solver's residual adds the forces itself
+        if self._joint_effects:
+            d.qfrc_applied[self._joint_dof] = self._effect_forces(qpos[self._joint_qpos])
+        if self._external is not None:
+            mujoco.mj_kinematics(self.model, d)  # the block site and the tool's centre of mass
+            force, torque = self._external
+            lever = d.site_xpos[self._site[mjcf.BLOCK_SITE]] - d.xipos[self._tool_body]
+            d.xfrc_applied[self._tool_body] = np.concatenate([force, torque + np.cross(lever, force)])
+        elif self._external_in_data:
+            d.xfrc_applied[self._tool_body] = 0.0
+        self._external_in_data = self._external is not None
+
     def _readout(self, qpos: np.ndarray, residual: float, iterations: int) -> RigState:
         # Hot (twice per test): few numpy calls, each costs ~1 us here, as much as mj_forward.
         m, d, t = self.model, self.data, self._tendon
         self._qpos[:] = qpos
         self._qvel[:] = 0.0
+        self._forces_for_readout(qpos)
         mujoco.mj_forward(m, d)
         rest = float(self._ten_spring[t, 1])
         length = float(d.ten_length[t])
