@@ -407,9 +407,10 @@ class Rig:
         (a coupling, a cubic spring) act through the residual only; left out of ``qfrc_applied``
         they leave MuJoCo an unbalanced joint torque, hence an acceleration, and the sensor read
         the subtree's inertia times it (0.35 N and 0.17 N*m with the realistic coupling at 250 N
-        until 2026-12-01: docs/effects.md, tests/test_world_effects.py). Joint torques reach the sensor only through that acceleration, so with
-        them applied it reads what the tool really transmits. An external wrench (a test's stand-in
-        for the wire) is a body force on the tool, where the sensor sees it.
+        until 2026-12-01: docs/effects.md, tests/test_world_effects.py). Joint torques reach the
+        sensor only through that acceleration, so with them applied it reads what the tool really
+        transmits. An external wrench (a test's stand-in for the wire) is a body force on the tool,
+        where the sensor sees it.
         """
         d = self.data  # nothing else sets these two: the solver's residual adds the forces itself
         if self._joint_effects:
