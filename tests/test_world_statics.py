@@ -82,7 +82,7 @@ def test_tangent_stiffness_matches_central_differences(robot, effects, external)
     rig.hook("hook_x", "ring_5")
     if external:
         # within the sensor's range beside the wire's 200 N: the F/T sensor reads the external
-        # wrench too since 2026-12-01 (a body force on the tool, rig._forces_for_readout)
+        # wrench too since 2026-12-01 (a body force on the tool, rig_readout.RigReadout._forces_for_readout)
         rig.apply_external_wrench([120.0, -80.0, 40.0], [4.0, -2.0, 1.2])
     q = rig.tighten(200.0).qpos_all
     k, ref = rig.tangent_stiffness(q), _fd_tangent(rig, q)
