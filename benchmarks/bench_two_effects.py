@@ -11,7 +11,9 @@ effects were named: diagnose.name_effects). An effect counts as named when one o
 (``_discrepancy_worlds.true_labels``: the block offset's rotation or its translation).
 ``--out FILE`` writes every trial's record as ``bench_discrepancy.py --out`` does;
 ``--noise-free`` runs no trials and prints, per pair, each effect's noise-free likelihood ratio
-alone and beyond the other's, with the power the search's second round has at it.
+alone and beyond the other's, with the power the search's second round has at it: with the floor
+known (a chi^2 test) and against a floor estimated from the trials' repeat scans
+(``floor_calibration.lr_power``, as ``bench_discrepancy.py`` sizes its worlds near the limit).
 
     .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
         [--loaded-repeats 3] [--out two.json] [--noise-free]
@@ -20,6 +22,7 @@ alone and beyond the other's, with the power the search's second round has at it
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import sys
 import time
@@ -30,10 +33,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import bench_discrepancy as bench  # noqa: E402
+import numpy as np  # noqa: E402
 from scipy.stats import chi2, ncx2  # noqa: E402
 
 from vtestbed.files import write_json_atomic  # noqa: E402
 from vtestbed.researcher.diagnose import MAX_TERMS, Whitener, fit_model, identifiable, step_level  # noqa: E402
+from vtestbed.researcher.floor_calibration import lr_power  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 PAIRS = (
@@ -97,25 +102,33 @@ def noise_free_overlap(pair: str, white) -> list[dict]:
             continue
         alone, given, both = (fit_model(ctx, white, terms) for terms in ([cand], [other], [other, cand]))
         lam, df = given.chi2 - both.chi2, both.rank - given.rank
+        # the residual beyond the other's term in the true floor's coordinates (noise N(0, I)), and
+        # the trials' floor sample count: what lr_power needs (as _discrepancy_sizes.strength)
+        signal = white(given.residuals.reshape(-1)) * math.sqrt(white.inflation)
+        tested = np.array([t == cand.label for t in both.column_terms])
+        nu = _discrepancy_worlds.REPEATS * len(prepared.tests)
         rows.append({"effect": name, "label": cand.label, "chi2": base.chi2, "alone": base.chi2 - alone.chi2,
                      "beyond_other": lam, "df": df, "level": level,
-                     "power": float(ncx2.sf(chi2.isf(level, df), df, lam))})  # fmt: skip
+                     "power": float(ncx2.sf(chi2.isf(level, df), df, lam)),
+                     "power_estimated_floor": lr_power(signal, both.design, tested, df, nu, level)})  # fmt: skip
     return rows
 
 
 def print_noise_free(pairs: list[str]) -> None:
     white = Whitener(_discrepancy_worlds.reference_floor(_discrepancy_worlds.REF_REPEATS))
     print(
-        "| hidden pair | effect (label) | likelihood ratio alone | beyond the other's | df | power, second round (level) |"
+        "| hidden pair | effect (label) | likelihood ratio alone | beyond the other's | df "
+        "| power, second round (level) | the same, floor estimated |"
     )
-    print("| --- | --- | ---: | ---: | ---: | ---: |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: |")
     for pair in pairs:
         for r in noise_free_overlap(pair, white):
             if r["label"] is None:
-                print(f"| {pair} | {r['effect']} (no candidate) | - | - | - | - |")
+                print(f"| {pair} | {r['effect']} (no candidate) | - | - | - | - | - |")
                 continue
             print(f"| {pair} (chi^2 {r['chi2']:.1f}) | {r['effect']} ({r['label']}) | {r['alone']:.1f} "
-                  f"| {r['beyond_other']:.1f} | {r['df']} | {100 * r['power']:.0f} % ({r['level']:.1e}) |")  # fmt: skip
+                  f"| {r['beyond_other']:.1f} | {r['df']} | {100 * r['power']:.0f} % ({r['level']:.1e}) "
+                  f"| {100 * r['power_estimated_floor']:.0f} % |")  # fmt: skip
 
 
 def main() -> None:

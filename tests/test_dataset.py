@@ -2,6 +2,7 @@
 format documents them, and malformed files refused naming the file, the line and the field."""
 
 import csv
+import dataclasses
 import json
 import re
 
@@ -68,6 +69,13 @@ def test_setup_round_trip_is_exact(tmp_path, lab):
     assert back.sensor_range == setup.sensor_range and back.notes == "notes é"
     assert back.sensor_spec.name == "my sensor" and back.sensor_spec.max_force == 900.0
     assert json.loads((tmp_path / "setup.json").read_text())["format"] == "vtestbed-dataset/1"
+    # no mount side recorded: none in the file, zero when read (a dataset from before 2026-12-02)
+    assert "mount_side_mass_kg" not in json.loads((tmp_path / "setup.json").read_text())["force_sensor"]
+    assert (back.sensor_mount_mass, back.sensor_mount_com) == (0.0, (0.0, 0.0, 0.0))
+    mounted = dataclasses.replace(setup, sensor_mount_mass=0.45, sensor_mount_com=(0.001, -0.002, 0.0133))
+    write_setup(tmp_path, mounted)
+    back = read_setup(tmp_path)
+    assert (back.sensor_mount_mass, back.sensor_mount_com) == (0.45, (0.001, -0.002, 0.0133))
 
 
 def test_tests_round_trip_is_bit_exact_and_appends(tmp_path):

@@ -260,6 +260,16 @@ CASES = {
     "setup-sensor-string": setup_error(force_sensor="ati"),
     "setup-sensor-range-nan": setup_error(force_sensor={"range_N_Nm": [330, 330, 990, 30, 30, float("nan")]}),
     "setup-sensor-range-zero": setup_error(force_sensor={"range_N_Nm": [330, 330, 990, 30, 30, 0]}),
+    "setup-sensor-mount-mass-negative": setup_error(
+        force_sensor={"range_N_Nm": [330, 330, 990, 30, 30, 30], "mount_side_mass_kg": -0.45}
+    ),
+    "setup-sensor-mount-com-short": setup_error(
+        force_sensor={
+            "range_N_Nm": [330, 330, 990, 30, 30, 30],
+            "mount_side_mass_kg": 0.45,
+            "mount_side_com_m": [0, 0.013],
+        }
+    ),
     "setup-edge-string": setup_error(block_edge_m="big"),
     "setup-edge-negative": setup_error(block_edge_m=-0.08),
     "setup-transform-ragged": setup_error(

@@ -52,7 +52,7 @@ def test_validation_gap_expectation_matches_a_monte_carlo_of_the_fit():
     squared validation ratio over 600 noise draws is the expected ratio squared."""
     scenario = load_scenario(ROOT / "scenarios" / "kr60_paper.toml")
     setup = dataset_setup(scenario, scenario.lab)
-    kin = ArmKinematics(scenario.robot, setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup, scenario.robot)
     rng = np.random.default_rng(13)
     compliance = 1.0 / np.array([5.0e6, 4.0e6, 3.0e6, 6.0e5, 5.0e5, 3.0e5])
     poses = [*scenario.poses[:8], *scenario.poses[15:20]]

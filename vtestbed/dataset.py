@@ -83,6 +83,11 @@ class DatasetSetup:
     sensor_name: str
     sensor_range: tuple[float, ...]  # |Fx|,|Fy|,|Fz| [N], |Tx|,|Ty|,|Tz| [N*m]
     notes: str = ""
+    # What the flange carries above the sensor's measurement (plate, upper half): mass [kg] and
+    # centre of mass [m] in the flange frame. The sensor does not read its weight, so the nominal
+    # statics add it to the arm's (researcher.kinematics.ArmKinematics.for_setup); 0: none known.
+    sensor_mount_mass: float = 0.0
+    sensor_mount_com: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # A mesh target (docs/targets.md): kind, file, sha256, extents_m, face_margin_m (the chamfer
     # width: > 0 makes the plane fits drop each face's boundary band), mass_kg; None: the plain box.
     target: dict | None = None
@@ -100,7 +105,18 @@ class DatasetSetup:
             "block_in_flange": np.asarray(self.block_in_flange).tolist(),
             "sensor_in_flange": np.asarray(self.sensor_in_flange).tolist(),
             "block_edge_m": self.block_edge,
-            "force_sensor": {"name": self.sensor_name, "range_N_Nm": list(self.sensor_range)},
+            "force_sensor": {
+                "name": self.sensor_name,
+                "range_N_Nm": list(self.sensor_range),
+                **(
+                    {
+                        "mount_side_mass_kg": self.sensor_mount_mass,
+                        "mount_side_com_m": list(self.sensor_mount_com),
+                    }
+                    if self.sensor_mount_mass > 0
+                    else {}
+                ),
+            },
             "notes": self.notes,
             **({} if self.target is None else {"target": self.target}),
         }
@@ -170,6 +186,7 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
         )
     checks.dataset_format(data.get("format"), path, FORMAT)
     sensor_name, sensor_range = checks.force_sensor(data["force_sensor"], path)
+    mount_mass, mount_com = checks.sensor_mount_side(data["force_sensor"], path)
     return DatasetSetup(
         robot=checks.robot_name(data["robot"], path),
         angle_convention=data["angle_convention"],
@@ -179,6 +196,8 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
         sensor_name=sensor_name,
         sensor_range=sensor_range,
         notes=str(data.get("notes", "")),
+        sensor_mount_mass=mount_mass,
+        sensor_mount_com=mount_com,
         target=_target(data.get("target"), path),
     )
 

@@ -21,6 +21,7 @@ from .errors import DatasetError
 BLOCK_EDGE_RANGE_M = (1e-3, 1.0)  # a target block on a flange: 1 mm to 1 m
 MOUNT_OFFSET_MAX_M = 2.0  # block or sensor frame within 2 m of the flange
 SENSOR_RANGE_MAX = 1e6  # N or N*m: far above any 6-axis F/T sensor
+SENSOR_MOUNT_MASS_RANGE_KG = (0.0, 100.0)  # what the flange carries above the measurement: plate, housing
 # The scanner's rough pose in the robot base frame, per component. A scanner stands metres from the
 # robot at most, so a position beyond 50 m is one in mm; a rotation vector's components lie within
 # pi (4 allows a little past it), so a larger one is in degrees.
@@ -113,6 +114,25 @@ def force_sensor(value, where: str) -> tuple[str, tuple[float, ...]]:
             f"N or N*m (a NaN or zero range would switch the overload check off), got {rng!r}"
         )
     return name, tuple(float(v) for v in rng)
+
+
+def sensor_mount_side(value: dict, where: str) -> tuple[float, tuple[float, float, float]]:
+    """(mass [kg], centre of mass in the flange frame [m]) of what the flange carries above the
+    sensor's measurement (its mounting plate and upper half): ``force_sensor.mount_side_mass_kg``
+    (default 0: none) and ``force_sensor.mount_side_com_m`` (default the flange's centre)."""
+    mass = number(value.get("mount_side_mass_kg", 0.0), where, "force_sensor.mount_side_mass_kg",
+                  *SENSOR_MOUNT_MASS_RANGE_KG, "kg")  # fmt: skip
+    com = value.get("mount_side_com_m", [0.0, 0.0, 0.0])
+    if (
+        not isinstance(com, list)
+        or len(com) != 3
+        or not all(_is_number(v) and abs(v) <= MOUNT_OFFSET_MAX_M for v in com)
+    ):
+        raise DatasetError(
+            f"{where}: force_sensor.mount_side_com_m must be 3 numbers [m] in the flange frame, each within "
+            f"{MOUNT_OFFSET_MAX_M:g} m of the flange, got {com!r}"
+        )
+    return mass, (float(com[0]), float(com[1]), float(com[2]))
 
 
 # ---------------------------------------------------------------------- CSV files

@@ -113,11 +113,10 @@ def _researcher_view(root: Path, alpha: float, scale: ScaleTerm | None = None):
     None: as measured). The pool holds every candidate, a scale the block settled on this dataset
     too: an earlier round's rivals, read from its report, may hold it where the block could not
     tell before the round's tests."""
-    from .robots import load_robot
 
     # as diagnose measures: against the mean unloaded scan, the creep check at the same alpha
     setup, ms, floor = load_with_floor(root, alpha)
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup)
     ident = corrected([m for m in ms if m.group == "identification"], scale)
     # the diagnosis's baseline (discover diagnoses with the default), so that the rivals' fits are its fits
     ctx = ModelContext(ident, setup, kin, baseline_statics(DEFAULT_STATICS, kin, setup))

@@ -63,6 +63,8 @@ def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
         sensor_name=lab.sensor.name,
         sensor_range=lab.sensor.wrench_range,
         notes=f"simulated by vtestbed from scenario {scenario.name!r}",
+        sensor_mount_mass=lab.sensor.mass_mount_side,
+        sensor_mount_com=tuple(float(v) for v in lab.sensor.mount_side_com_in_flange),
         target=None if lab.block.mesh is None else lab.block.mesh.setup_json(),
     )
 

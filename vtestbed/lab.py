@@ -68,6 +68,12 @@ class ForceSensorSpec:
     mass_tool_side: float = 0.46  # kg, hangs below the measurement
 
     @property
+    def mount_side_com_in_flange(self) -> np.ndarray:
+        """Centre of mass [m] of the mount side (plate and upper half), on the flange z axis: the
+        weight the flange carries but the sensor does not read."""
+        return np.array([0.0, 0.0, (self.adapter_thickness + self.height / 2) / 2])
+
+    @property
     def origin_in_flange(self) -> np.ndarray:
         """Measurement origin: centre of the tool-side face, on the flange z axis [m]."""
         return np.array([0.0, 0.0, self.adapter_thickness + self.height])

@@ -99,7 +99,7 @@ class PreparedScenario:
     @cached_property
     def kinematics(self) -> ArmKinematics:
         """The researcher's Pinocchio model of the block, built on first use and then reused."""
-        return ArmKinematics(self.scenario.robot, self.setup.block_in_flange)
+        return ArmKinematics.for_setup(self.setup, self.scenario.robot)
 
     @cached_property
     def sensor(self) -> ForceTorqueSensor:

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_json_atomic, write_text_atomic
-from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from . import block_size
 from .block_size import ScaleCheck
@@ -85,7 +84,7 @@ def diagnose(
     require_outside(statics, names, "--candidates")
     # displacements against the mean unloaded scan; loaded repeats left out if the creep check fails at alpha
     setup, measurements, floor = load_with_floor(root, alpha, edges=True)
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup)
     ident = [m for m in measurements if m.group == "identification"]
     pool = candidates(kin, names)
     if pool:  # the candidate with the most parameters must still leave a residual to test

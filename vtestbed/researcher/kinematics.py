@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from ..robots import RobotDescription
+from ..robots import RobotDescription, load_robot
 from ..transforms import homogeneous, rot_x
 
 
@@ -60,15 +60,37 @@ class ArmKinematics:
     robot : RobotDescription
     tool_in_flange : (4, 4) array, optional
         Default tool frame (e.g. the block frame B) in the flange frame.
+    flange_mass : float
+        Mass [kg] that the flange carries and the F/T sensor does not read (the sensor's mounting
+        plate and upper half), added to the last link's inertia at ``flange_com`` (3,) [m] in the
+        flange frame, so that the weight in the statics is the arm's plus that (0: the robot's own).
     """
 
-    def __init__(self, robot: RobotDescription, tool_in_flange: np.ndarray | None = None):
+    def __init__(
+        self,
+        robot: RobotDescription,
+        tool_in_flange: np.ndarray | None = None,
+        flange_mass: float = 0.0,
+        flange_com=(0.0, 0.0, 0.0),
+    ):
         self.robot = robot
         self.model = build_pinocchio_model(robot)
+        if flange_mass > 0:  # a point mass: the statics need its weight, not its rotational inertia
+            com = robot.flange_transform @ np.append(np.asarray(flange_com, dtype=float), 1.0)
+            point = pin.Inertia(flange_mass, com[:3], np.zeros((3, 3)))
+            self.model.appendBodyToJoint(self.model.njoints - 1, point, pin.SE3.Identity())
         self.data = self.model.createData()
         self.tool_in_flange = np.eye(4) if tool_in_flange is None else np.asarray(tool_in_flange, dtype=float)
         self._last_joint = self.model.njoints - 1
         self._flange = robot.flange_transform  # the flange in the last DH frame
+
+    @classmethod
+    def for_setup(cls, setup, robot: RobotDescription | None = None) -> ArmKinematics:
+        """The model of a dataset's setup (a :class:`vtestbed.dataset.DatasetSetup`): its block
+        frame as the tool, and the weight its flange carries above the sensor's measurement
+        (``setup.sensor_mount_mass``) among the masses; ``robot`` defaults to ``setup.robot``'s."""
+        robot = load_robot(setup.robot) if robot is None else robot
+        return cls(robot, setup.block_in_flange, setup.sensor_mount_mass, setup.sensor_mount_com)
 
     def _update(self, q) -> None:
         q = np.asarray(q, dtype=float)

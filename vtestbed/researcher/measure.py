@@ -189,7 +189,7 @@ def load_measurements(
     if not records:
         raise DatasetError(f"{root / 'tests.csv'} holds no tests")
     robot = load_robot(setup.robot)
-    kin = ArmKinematics(robot, setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup, robot)
     out = []
     for i, record in enumerate(records):
         out.append(measure_test(record, setup, kin, edges))

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from ..dataset import read_setup
 from ..errors import ConvergenceError, DatasetError, OutOfRangeError, UnknownNameError
-from ..robots import load_robot
 from .block_size import scale_check
 from .candidates import (
     BLOCK_OFFSET_LABELS,
@@ -120,7 +119,7 @@ def identify_with_model(root, model_path) -> dict:
     (a mesh target, fewer than 3 tests).
     """
     setup = read_setup(root)  # the robot the model file must match, before the clouds are fitted
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup)
     terms, statics = read_model(model_path, setup.robot, kin)
     with_scale = any(t.label == SCALE_LABEL for t in terms)  # only then the block's edges are measured
     setup, measurements, floor = load_with_floor(root, edges=with_scale)  # as diagnose measures

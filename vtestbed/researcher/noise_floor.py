@@ -53,7 +53,6 @@ import numpy as np
 from ..dataset import DatasetSetup, TestRecord, read_setup, read_tests
 from ..dataset_repeats import REPEATS_FILE, read_repeats
 from ..errors import DatasetError, OutOfRangeError
-from ..robots import load_robot
 from ..transforms import DISPLACEMENT_COMPONENTS as COMPONENTS
 from ..transforms import displacement_in_block_frame
 from .kinematics import ArmKinematics
@@ -380,7 +379,7 @@ def repeat_scan_frames(
             root, check_files=False, sensor_range=setup.sensor_range, sensor_name=setup.sensor_name
         )
     }
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup)
     known = {m.test_id: m.frame_unloaded for m in measurements or ()}
     by_test: dict[str, list] = {}
     for rep in sorted(repeats, key=lambda r: r.repeat):

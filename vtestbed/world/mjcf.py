@@ -188,7 +188,7 @@ def _add_tool(spec: mujoco.MjSpec, last_link: mujoco.MjsBody, flange: np.ndarray
         mount,
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
         size=[sensor.diameter / 2, (sensor.adapter_thickness + half) / 2, 0.0],
-        pos=[0.0, 0.0, (sensor.adapter_thickness + half) / 2],
+        pos=sensor.mount_side_com_in_flange,
         rgba=[0.6, 0.6, 0.65, 1.0],
     )
     mount_geom.mass = sensor.mass_mount_side
