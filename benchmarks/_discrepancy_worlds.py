@@ -220,6 +220,17 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
             {k: r[k] for k in ("label", "name", "lr", "df", "p_value", "bic", "press", "significant")}
             for r in steps[0].tests
         ],  # fmt: skip
+        # the later rounds' tests too: what a second effect's likelihood ratio was beyond the first
+        "later_rounds": [
+            {
+                "base": list(s.base_terms),
+                "level": s.level,
+                "tests": [
+                    {k: r[k] for k in ("label", "lr", "df", "p_value", "significant")} for r in s.tests
+                ],
+            }
+            for s in steps[1:]
+        ],  # fmt: skip
         "val_before": before,
         "val_after": after,
         "val_expected_after": gap_after["expected_ratio"],  # a correct model with the named terms
