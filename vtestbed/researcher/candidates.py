@@ -145,11 +145,11 @@ def _sag_and_load_torques(ctx: ModelContext, compliance, j: int, gravity) -> tup
     """(T,), (T,) joint ``j``'s torque [N*m] in the unloaded state (the sag's: the arm's weight and
     what the sensor carries) and its change under the load.
 
-    With the exact statics they are the linear springs' torques ``(q - q_cmd) / c`` at its two
-    equilibria (weight and sensor Jacobian at the sagged poses); otherwise the weight and the
-    unloaded reading at the commanded pose and ``J^T dW``. On the paper's 20 tests (noise-free,
-    the realistic hardening of joint 2) the commanded pose's torques recover k3 0.34 % high, the
-    equilibria's 0.05 % (tests/test_researcher_discrepancy.py)."""
+    With the exact statics they are the linear springs' torques ``(q - q_cmd) / c`` at the
+    statics' two equilibria (weight and sensor Jacobian at the sagged poses); otherwise the
+    weight and the unloaded reading at the commanded pose and ``J^T dW``. On the paper's 20 tests
+    (noise-free, the realistic hardening of joint 2) the commanded pose's torques recover k3
+    0.34 % high, the equilibria's 0.05 % (tests/test_researcher_discrepancy.py)."""
     tau_g, tau_w = np.empty(ctx.n_tests), np.empty(ctx.n_tests)
     for t, m in enumerate(ctx.measurements):
         if ctx.statics is not None and m.readings is not None:
