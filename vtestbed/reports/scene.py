@@ -22,7 +22,6 @@ from ..ply import read_ply
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import measure_arrays
 from ..robot_lab import lab_for_robot
-from ..robots import load_robot
 from .loader import ReportError
 
 MAX_POINTS = 2500  # per cloud: enough to see the faces, small enough for a 10 MB page
@@ -100,7 +99,7 @@ def one_test_scene(dataset: str | Path, test_id: str | None = None, max_points: 
     if test_id not in by_id:
         raise ReportError(f"{dataset}: test {test_id!r} is not in tests.csv; valid tests: {', '.join(by_id)}")
     record = by_id[test_id]
-    kin = ArmKinematics(load_robot(setup.robot), setup.block_in_flange)
+    kin = ArmKinematics.for_setup(setup)
     clouds = [read_ply(record.cloud_unloaded), read_ply(record.cloud_loaded)]
     m = measure_arrays(record, clouds[0], clouds[1], setup, kin)
     scanner = record.scanner_pose
