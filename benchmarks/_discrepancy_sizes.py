@@ -49,13 +49,22 @@ def strength(name: str, factor: float, white: Whitener, statics: str) -> dict:
     fits = [(base.chi2 - (fit := fit_model(ctx, white, [c])).chi2, c, fit) for c in family]
     lam, cand, fit = max(fits, key=lambda x: x[0])
     df = fit.rank - base.rank
-    # what lr_power needs: the residual in the true floor's coordinates (noise N(0, I)), and the
-    # trials' floor sample count (REPEATS of every test, validation tests included)
-    signal = white(base.residuals.reshape(-1)) * math.sqrt(white.inflation)
-    power_args = (fit.design, np.array([t == cand.label for t in fit.column_terms]), df,
-                  REPEATS * len(prepared.tests), ALPHA / len(pool))  # fmt: skip
+    signal, power_args = lr_power_inputs(
+        white, base, fit, cand.label, df, len(prepared.tests), ALPHA / len(pool)
+    )
     return {"lambda": float(lam), "df": df, "test": "naming", "level": ALPHA / len(pool),
             "label": cand.label, "signal": signal, "power_args": power_args}  # fmt: skip
+
+
+def lr_power_inputs(white: Whitener, without, fit, label: str, df: int, n_tests: int, level: float):
+    """What :func:`~vtestbed.researcher.floor_calibration.lr_power` needs to test ``label`` in
+    ``fit`` beyond the model ``without`` it: the latter's noise-free residual in the true floor's
+    coordinates (noise N(0, I), so without the Whitener's division by sqrt(inflation)), and the
+    arguments after it, with the trials' floor sample count (REPEATS of each of ``n_tests``,
+    validation tests included). Returns (signal, args): ``lr_power(signal, *args)``."""
+    signal = white(without.residuals.reshape(-1)) * math.sqrt(white.inflation)
+    tested = np.array([t == label for t in fit.column_terms])
+    return signal, (fit.design, tested, df, REPEATS * n_tests, level)
 
 
 def estimated_floor_power(s: dict, scale: float = 1.0) -> float | None:

@@ -22,7 +22,6 @@ known (a chi^2 test) and against a floor estimated from the trials' repeat scans
 from __future__ import annotations
 
 import argparse
-import math
 import multiprocessing
 import sys
 import time
@@ -33,7 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import bench_discrepancy as bench  # noqa: E402
-import numpy as np  # noqa: E402
+from _discrepancy_sizes import lr_power_inputs  # noqa: E402
 from scipy.stats import chi2, ncx2  # noqa: E402
 
 from vtestbed.files import write_json_atomic  # noqa: E402
@@ -102,15 +101,11 @@ def noise_free_overlap(pair: str, white) -> list[dict]:
             continue
         alone, given, both = (fit_model(ctx, white, terms) for terms in ([cand], [other], [other, cand]))
         lam, df = given.chi2 - both.chi2, both.rank - given.rank
-        # the residual beyond the other's term in the true floor's coordinates (noise N(0, I)), and
-        # the trials' floor sample count: what lr_power needs (as _discrepancy_sizes.strength)
-        signal = white(given.residuals.reshape(-1)) * math.sqrt(white.inflation)
-        tested = np.array([t == cand.label for t in both.column_terms])
-        nu = _discrepancy_worlds.REPEATS * len(prepared.tests)
+        signal, power_args = lr_power_inputs(white, given, both, cand.label, df, len(prepared.tests), level)
         rows.append({"effect": name, "label": cand.label, "chi2": base.chi2, "alone": base.chi2 - alone.chi2,
                      "beyond_other": lam, "df": df, "level": level,
                      "power": float(ncx2.sf(chi2.isf(level, df), df, lam)),
-                     "power_estimated_floor": lr_power(signal, both.design, tested, df, nu, level)})  # fmt: skip
+                     "power_estimated_floor": lr_power(signal, *power_args)})  # fmt: skip
     return rows
 
 
