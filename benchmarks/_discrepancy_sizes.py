@@ -14,7 +14,7 @@ import math
 
 import _discrepancy_worlds
 import numpy as np
-from _discrepancy_worlds import ALPHA, REPEATS, max_factor, model_context, noise_free, prepared_world
+from _discrepancy_worlds import ALPHA, max_factor, model_context, noise_free, prepared_world
 from scipy.optimize import brentq
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import ncx2
@@ -64,7 +64,7 @@ def lr_power_inputs(white: Whitener, without, fit, label: str, df: int, n_tests:
     validation tests included). Returns (signal, args): ``lr_power(signal, *args)``."""
     signal = white(without.residuals.reshape(-1)) * math.sqrt(white.inflation)
     tested = np.array([t == label for t in fit.column_terms])
-    return signal, (fit.design, tested, df, REPEATS * n_tests, level)
+    return signal, (fit.design, tested, df, _discrepancy_worlds.REPEATS * n_tests, level)
 
 
 def estimated_floor_power(s: dict, scale: float = 1.0) -> float | None:

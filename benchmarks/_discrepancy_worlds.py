@@ -6,7 +6,7 @@ effect (or ``"a+b"``: two) at ``f`` times its realistic size; its physics is pre
 worker process. A trial draws one dataset's noise from its seed exactly as ``vtestbed simulate``
 would and runs the researcher's reduction and ``name_effects`` on it (``bench_discrepancy.py``'s
 docstring gives the chain). The settings ``main`` takes from the command line (``SCENARIO``,
-``RANK``, ``LOADED_REPEATS``) are module attributes read at call time, and environment variables
+``RANK``, ``REPEATS``, ``LOADED_REPEATS``) are module attributes read at call time, and environment variables
 for the spawned workers, which re-import this module. Units: SI.
 """
 
@@ -34,6 +34,7 @@ from vtestbed.researcher.diagnose import (  # noqa: E402
 from vtestbed.researcher.model_file import SPLIT_TERMS, baseline_statics  # noqa: E402
 from vtestbed.researcher.naming_run import run_naming  # noqa: E402
 from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames  # noqa: E402
+from vtestbed.researcher.reading_noise import with_reading_noise  # noqa: E402
 from vtestbed.researcher.scale_term import named_labels  # noqa: E402
 from vtestbed.researcher.scan_mean import against_scan_mean  # noqa: E402
 
@@ -49,7 +50,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = Path(os.environ.get("VTESTBED_BENCH_SCENARIO", ROOT / "scenarios" / "kr60_paper.toml"))
 ALPHA = 0.01
 RANK = os.environ.get("VTESTBED_BENCH_RANK", DEFAULT_RANK)  # --rank, for the spawned workers too
-REPEATS = 3  # repeat scans per test, as scenarios/kr60_hidden_link.toml
+# --repeats: scans of the unloaded block per test beyond its own ([scanner] repeats; 3 as
+# scenarios/kr60_hidden_link.toml), an environment variable for the spawned workers as below
+REPEATS = int(os.environ.get("VTESTBED_BENCH_REPEATS", "3"))
 # --loaded-repeats: scans of the loaded block per test beyond its own (0: the paper's one scan;
 # an environment variable so that the spawned workers see it too)
 LOADED_REPEATS = int(os.environ.get("VTESTBED_BENCH_LOADED_REPEATS", "0"))
@@ -60,6 +63,13 @@ def set_loaded_repeats(repeats: int) -> None:
     global LOADED_REPEATS
     LOADED_REPEATS = repeats
     os.environ["VTESTBED_BENCH_LOADED_REPEATS"] = str(repeats)
+
+
+def set_repeats(repeats: int) -> None:
+    """``REPEATS`` here and in the environment, which the spawned workers read on import."""
+    global REPEATS
+    REPEATS = repeats
+    os.environ["VTESTBED_BENCH_REPEATS"] = str(repeats)
 
 
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
@@ -196,6 +206,7 @@ def trial(prepared, pool, seed: int, statics: str) -> dict:
     # as load_with_floor: every displacement against its test's mean unloaded scan (to its mean
     # loaded scan with --loaded-repeats, unless the creep check fails at ALPHA), the floor for it
     ms, floor = against_scan_mean(ms, frames, noise_floor_from_frames(frames), loaded, ALPHA)
+    floor = with_reading_noise(floor, ms, prepared.setup)  # the F/T readings' noise, as load_with_floor
     t2 = time.perf_counter()
     # as diagnose: detect, settle the scale on the block, name (the same core, naming_run)
     exact = baseline_statics(statics, prepared.kinematics, prepared.setup)
@@ -274,10 +285,11 @@ def reference_floor(repeats: int) -> NoiseFloor:
     """The clean world's floor from ``repeats`` repeats of every test (seed REF_SEED), with its
     sample count (the whitener divides out the chi^2 inflation of an estimated floor), for the
     trials' displacements (against the mean of ``REPEATS + 1`` unloaded scans, to the mean of
-    ``LOADED_REPEATS + 1`` loaded ones)."""
+    ``LOADED_REPEATS + 1`` loaded ones), the F/T readings' noise added as the trials add it."""
     prepared, _ = prepared_world(None, 1.0)  # the clean world: no effects in the repeats
     ms = measure_trial(prepared, REF_SEED, list(prepared.tests))
     noise = prepared.scenario.scanner.noise_model
-    return noise_floor_from_frames(
+    floor = noise_floor_from_frames(
         repeat_frames(prepared, REF_SEED, list(prepared.tests), ms, noise, repeats)
     ).for_scan_mean(REPEATS + 1, LOADED_REPEATS + 1)  # the trials' displacements, both ends
+    return with_reading_noise(floor, ms, prepared.setup)

@@ -1,7 +1,7 @@
 """The discrepancy workflow's confusion matrix: which hidden effect does it name, and how often?
 
 Run: .venv/bin/python benchmarks/bench_discrepancy.py [--seeds 50] [--workers 2] [--effects a,b] [--quick]
-       [--loaded-repeats 3] [--limit-factor scanner_scale=10.32]
+       [--repeats 3] [--loaded-repeats 3] [--limit-factor scanner_scale=10.32]
 
 Worlds: ``scenarios/kr60_paper.toml`` (20 identification tests at 200 N, the 5 Table 6
 validation tests) clean, and with each effect of ``vtestbed.world.effects.EFFECTS`` hidden alone
@@ -12,7 +12,8 @@ Per world the physics is done once (:func:`vtestbed.campaigns.montecarlo.prepare
 ``vtestbed simulate`` would write that dataset with ``[scanner] repeats = 3``
 (:func:`~vtestbed.world.physics.test_rng` and ``draw_readings`` with the world's effects for the
 test's own scans and readings, :func:`~vtestbed.world.repeats.repeat_rng` and
-``draw_repeat_scans`` for 3 repeats of every test, validation tests included), reduced by the
+``draw_repeat_scans`` for 3 repeats of every test, validation tests included; ``--repeats R``
+for R), reduced by the
 researcher's own code (``measure_arrays``; ``scan_frames`` -> ``noise_floor_from_frames``, the
 floor ``estimate_noise_floor`` gives from the files; ``against_scan_mean``: every displacement
 against its test's mean unloaded scan, as ``load_with_floor`` measures a dataset since
@@ -83,7 +84,6 @@ from _discrepancy_worlds import (  # the names bench_discriminate / bench_two_ef
     DEFAULT_EFFECTS,
     REF_REPEATS,
     REF_SEED,
-    REPEATS,
     SCENARIO,
     SEED0,
     SIZE_FIELDS,
@@ -130,6 +130,9 @@ def main() -> None:
         default=_discrepancy_worlds.SCENARIO,
         help="the experiment (default: the paper's)",
     )
+    parser.add_argument("--repeats", type=int, default=_discrepancy_worlds.REPEATS,
+                        help="further scans of the unloaded block per test, the floor's samples and "
+                             "averaged into each displacement (default %(default)s; [scanner] repeats)")  # fmt: skip
     parser.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS,
                         help="further scans of the loaded block per test, averaged into each displacement "
                              "(default 0: the paper's one loaded scan; [scanner] loaded_repeats)")  # fmt: skip
@@ -138,6 +141,10 @@ def main() -> None:
     args = parser.parse_args()
     # the workers read them from the environment when they import _discrepancy_worlds
     _discrepancy_worlds.RANK = os.environ["VTESTBED_BENCH_RANK"] = args.rank
+    if args.repeats < 1 or args.loaded_repeats < 0:
+        parser.error(f"--repeats {args.repeats}, --loaded-repeats {args.loaded_repeats}: valid: "
+                     "--repeats 1 or more (the floor needs them), --loaded-repeats 0 or more")  # fmt: skip
+    _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     _discrepancy_worlds.SCENARIO = args.scenario.resolve()
     os.environ["VTESTBED_BENCH_SCENARIO"] = str(_discrepancy_worlds.SCENARIO)
@@ -214,7 +221,7 @@ def main() -> None:
     for rs in results.values():
         rs.sort(key=lambda r: r["seed"])
     cal = {n: cal[n] for n in sorted(cal, key=order.get)}
-    print(f"# bench_discrepancy: {_discrepancy_worlds.SCENARIO.name}, {seeds} seeds per world (seed {SEED0}+k), r = {REPEATS} "
+    print(f"# bench_discrepancy: {_discrepancy_worlds.SCENARIO.name}, {seeds} seeds per world (seed {SEED0}+k), r = {_discrepancy_worlds.REPEATS} "
           f"repeats per test, {_discrepancy_worlds.LOADED_REPEATS} loaded repeats, alpha = {ALPHA}, {args.statics} statics, {args.workers} workers; wall {wall:.0f} s")  # fmt: skip
     if args.out:  # before the tables: a run's records outlive a fault in the report
         args.out.write_text(

@@ -3,7 +3,7 @@
 Worlds: ``scenarios/kr60_paper.toml`` with two effects hidden together, each at its realistic
 default (docs/effects.md), for the pairs of the effects the workflow detects alone at that size
 (docs/discrepancy_benchmark.md). Every trial is exactly a trial of
-``benchmarks/bench_discrepancy.py`` (same noise draws, 3 repeat scans per test, exact statics,
+``benchmarks/bench_discrepancy.py`` (same noise draws, 3 repeat scans per test or ``--repeats``, exact statics,
 alpha 0.01, stepwise naming until nothing is significant). Prints per pair: both named, one named
 (and which), a wrong name among those named (the third names), nothing, with 95 % Clopper-Pearson
 intervals, and the terms the backward step dropped (named in an early round, redundant once both
@@ -16,7 +16,7 @@ known (a chi^2 test) and against a floor estimated from the trials' repeat scans
 (``floor_calibration.lr_power``, as ``bench_discrepancy.py`` sizes its worlds near the limit).
 
     .venv/bin/python benchmarks/bench_two_effects.py [--seeds 50] [--workers 2] [--pairs a+b,c+d]
-        [--loaded-repeats 3] [--out two.json] [--noise-free]
+        [--repeats 3] [--loaded-repeats 3] [--out two.json] [--noise-free]
 """
 
 from __future__ import annotations
@@ -135,12 +135,18 @@ def main() -> None:
     parser.add_argument("--noise-free", action="store_true",
                         help="print each pair's noise-free likelihood ratios (each effect alone and beyond the "
                              "other's) and the second round's power, and run no trials")  # fmt: skip
+    parser.add_argument("--repeats", type=int, default=_discrepancy_worlds.REPEATS,
+                        help="further scans of the unloaded block per test, as bench_discrepancy.py's "
+                             "(default %(default)s)")  # fmt: skip
     parser.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS,
                         help="further scans of the loaded block per test, as bench_discrepancy.py's "
                              "(default 0: the paper's one loaded scan)")  # fmt: skip
     args = parser.parse_args()
     if args.loaded_repeats < 0:
         parser.error(f"--loaded-repeats: {args.loaded_repeats} is negative; valid: 0 or more")
+    if args.repeats < 1:
+        parser.error(f"--repeats: {args.repeats} is below 1; valid: 1 or more (the floor needs them)")
+    _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     pairs = [p.strip() for p in args.pairs.split(",") if p.strip()]
     for pair in pairs:
@@ -171,10 +177,16 @@ def main() -> None:
     wall = time.perf_counter() - t0
     if args.out:  # before the tables: a fault in them must not lose the run
         write_json_atomic(
-            args.out, {"seeds": seeds, "loaded_repeats": args.loaded_repeats, "results": results}
+            args.out,
+            {
+                "seeds": seeds,
+                "repeats": args.repeats,
+                "loaded_repeats": args.loaded_repeats,
+                "results": results,
+            },
         )
     print(f"# bench_two_effects: {bench.SCENARIO.name}, {args.seeds} seeds per world (seed {bench.SEED0}+k), "
-          f"realistic sizes, {args.loaded_repeats} loaded repeats, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
+          f"realistic sizes, {args.repeats} unloaded and {args.loaded_repeats} loaded repeats, alpha {bench.ALPHA}; wall {wall:.0f} s\n")  # fmt: skip
     print(
         "| hidden pair | n | both named [95 % CI] | one named (which) | a third name too | nothing | errors "
         "| third names (count) | dropped by the backward step (count) |"

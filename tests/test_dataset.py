@@ -76,6 +76,11 @@ def test_setup_round_trip_is_exact(tmp_path, lab):
     write_setup(tmp_path, mounted)
     back = read_setup(tmp_path)
     assert (back.sensor_mount_mass, back.sensor_mount_com) == (0.45, (0.001, -0.002, 0.0133))
+    # the readings' noise: absent before 2026-12-02 (None: not known), exact when written
+    assert back.sensor_noise_std is None
+    noisy = dataclasses.replace(setup, sensor_noise_std=(0.0625, 0.0625, 0.0625, 0.0019, 0.0019, 0.0019))
+    write_setup(tmp_path, noisy)
+    assert read_setup(tmp_path).sensor_noise_std == noisy.sensor_noise_std
 
 
 def test_tests_round_trip_is_bit_exact_and_appends(tmp_path):

@@ -270,6 +270,12 @@ CASES = {
             "mount_side_com_m": [0, 0.013],
         }
     ),
+    "setup-sensor-noise-above-range": setup_error(
+        force_sensor={
+            "range_N_Nm": [330, 330, 990, 30, 30, 30],
+            "noise_std_N_Nm": [0.06, 0.06, 0.06, 0.002, 0.002, 45],
+        }
+    ),
     "setup-edge-string": setup_error(block_edge_m="big"),
     "setup-edge-negative": setup_error(block_edge_m=-0.08),
     "setup-transform-ragged": setup_error(

@@ -8,6 +8,7 @@ datasets. Stream statistics are checked against the known mean and std of the sy
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 import subprocess
@@ -479,3 +480,12 @@ def test_an_inline_setup_table_gives_the_same_setup(lab_files, tmp_path):
     a, b = read_setup(lab_files), read_setup(tmp_path / "o")
     assert np.array_equal(a.block_in_flange, b.block_in_flange) and a.sensor_range == b.sensor_range
     assert (a.robot, a.block_edge, a.angle_convention) == (b.robot, b.block_edge, b.angle_convention)
+    # no reading noise in the table: the windows' own, per axis the RMS of ft_windows.csv's standard errors
+    with open(tmp_path / "o" / "ft_windows.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    sem = np.array([[float(r[k]) for k in r if "_sem_" in k] for r in rows])
+    assert sem.shape == (2 * len(read_tests(tmp_path / "o")), 6)
+    np.testing.assert_allclose(b.sensor_noise_std, np.sqrt(np.mean(sem**2, axis=0)), rtol=1e-12)
+    assert (
+        a.sensor_noise_std is not None and b.sensor_noise_std != a.sensor_noise_std
+    )  # a stated one is kept, above

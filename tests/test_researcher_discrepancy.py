@@ -245,6 +245,11 @@ def test_diagnose_names_a_hidden_compliant_link_and_the_gap_shrinks(hidden_diagn
     )
     for name in ("report.json", "report.md", "gap.png", "patterns.png", "effect.png", "model.json"):
         assert (folder / name).stat().st_size > 100
+    # the F/T readings' noise the model is tested with: reported, and small beside a single scan's
+    # floor (0.5 um and urad at most on these 200 N tests, tests/test_reading_noise.py checks its value)
+    reading = np.array(report["noise_floor"]["reading_std"])
+    assert np.all(reading > 0) and np.all(reading < 0.25 * np.array(report["noise_floor"]["component_std"]))
+    assert "plus the F/T readings' noise in the prediction: x " in (folder / "report.md").read_text()
     # the named effect's figure: what the terms explain is the drop of chi^2, and it is most of it
     effect = report["effect"]
     assert effect["terms"] == report["named"]

@@ -88,6 +88,9 @@ class DatasetSetup:
     # statics add it to the arm's (researcher.kinematics.ArmKinematics.for_setup); 0: none known.
     sensor_mount_mass: float = 0.0
     sensor_mount_com: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # The std of one static F/T reading (Fx..Tz) [N, N*m]: the model's prediction carries it
+    # (researcher.reading_noise); None: not known, as before 2026-12-02.
+    sensor_noise_std: tuple[float, ...] | None = None
     # A mesh target (docs/targets.md): kind, file, sha256, extents_m, face_margin_m (the chamfer
     # width: > 0 makes the plane fits drop each face's boundary band), mass_kg; None: the plain box.
     target: dict | None = None
@@ -116,6 +119,7 @@ class DatasetSetup:
                     if self.sensor_mount_mass > 0
                     else {}
                 ),
+                **({} if self.sensor_noise_std is None else {"noise_std_N_Nm": list(self.sensor_noise_std)}),
             },
             "notes": self.notes,
             **({} if self.target is None else {"target": self.target}),
@@ -198,6 +202,7 @@ def parse_setup(data: dict, path: str | Path) -> DatasetSetup:
         notes=str(data.get("notes", "")),
         sensor_mount_mass=mount_mass,
         sensor_mount_com=mount_com,
+        sensor_noise_std=checks.sensor_noise_std(data["force_sensor"], path, sensor_range),
         target=_target(data.get("target"), path),
     )
 

@@ -135,6 +135,25 @@ def sensor_mount_side(value: dict, where: str) -> tuple[float, tuple[float, floa
     return mass, (float(com[0]), float(com[1]), float(com[2]))
 
 
+def sensor_noise_std(value: dict, where: str, sensor_range) -> tuple[float, ...] | None:
+    """The std of one static reading per axis (Fx..Tz) [N, N*m] from
+    ``force_sensor.noise_std_N_Nm``: 6 numbers, each in [0, its axis's range]; None when absent
+    (the reading noise is then not known and no model term carries it)."""
+    std = value.get("noise_std_N_Nm")
+    if std is None:
+        return None
+    if (
+        not isinstance(std, list)
+        or len(std) != 6
+        or not all(_is_number(v) and 0 <= v <= r for v, r in zip(std, sensor_range))
+    ):
+        raise DatasetError(
+            f"{where}: force_sensor.noise_std_N_Nm must be 6 numbers (Fx..Tz, the std of one static reading "
+            f"[N, N*m]), each in [0, its axis's range_N_Nm {list(sensor_range)}], got {std!r}"
+        )
+    return tuple(float(v) for v in std)
+
+
 # ---------------------------------------------------------------------- CSV files
 def read_csv(path: Path, columns: list[str], what: str) -> list[tuple[int, dict]]:
     """The rows of a dataset CSV file as (line number, row); every row has exactly the header's

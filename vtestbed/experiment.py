@@ -65,6 +65,7 @@ def dataset_setup(scenario: Scenario, lab: LabSetup) -> DatasetSetup:
         notes=f"simulated by vtestbed from scenario {scenario.name!r}",
         sensor_mount_mass=lab.sensor.mass_mount_side,
         sensor_mount_com=tuple(float(v) for v in lab.sensor.mount_side_com_in_flange),
+        sensor_noise_std=tuple(float(v) for v in scenario.force_sensor.noise_std),
         target=None if lab.block.mesh is None else lab.block.mesh.setup_json(),
     )
 

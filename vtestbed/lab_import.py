@@ -20,6 +20,7 @@ stored in m. Paths in the manifest are relative to the manifest's folder.
 from __future__ import annotations
 
 import csv
+import dataclasses
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,7 +208,11 @@ def import_dataset(
 
 def _write_dataset(spec: dict, out: Path, setup: DatasetSetup, readings: dict, clouds: dict) -> ImportResult:
     """setup.json, tests.csv, the repeats files and ft_windows.csv for the converted ``clouds``,
-    then the dataset's own checks on what was written."""
+    then the dataset's own checks on what was written. A setup that states no reading noise gets
+    the windows' own: per axis the RMS over every reading of its standard error of the mean."""
+    if setup.sensor_noise_std is None and readings:
+        sem = np.sqrt(np.mean([r.sem**2 for r in readings.values()], axis=0))
+        setup = dataclasses.replace(setup, sensor_noise_std=tuple(float(v) for v in sem))
     write_setup(out, setup)
     states = [s for s in STATES if any(t[REPEAT_KEYS[s]] for t in spec["tests"])]
     with ExitStack() as files:

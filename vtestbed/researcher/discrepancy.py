@@ -114,7 +114,10 @@ def diagnose(
         "candidates": list(names),
         "noise_floor": {"component_std": std.tolist(), "n_samples": int(floor.n_samples),
                         "reference_scans": floor.reference_scans, "loaded_scans": floor.loaded_scans,
-                        "loaded_scatter": floor.loaded_scatter and floor.loaded_scatter.to_dict()},
+                        "loaded_scatter": floor.loaded_scatter and floor.loaded_scatter.to_dict(),
+                        # the F/T readings' noise in the prediction (reading_noise), tested with the scans'
+                        "reading_std": None if floor.reading_covariance is None
+                        else np.sqrt(np.diag(floor.reading_covariance)).tolist()},
         "scale_check": scale and scale.to_dict(),  # None: a mesh target, or fewer than 3 tests
         "scale_term": term and term.to_dict(),  # None: scanner_scale not among the candidates
         "detect": {
@@ -283,6 +286,7 @@ def markdown(report: dict, joint_names) -> str:
         f"{_reference_text(report['noise_floor'].get('reference_scans', 1), report['noise_floor'].get('loaded_scans', 1))}): "
         + ", ".join(f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, report["noise_floor"]["component_std"]))
         + " (um, urad)"
+        + _reading_text(report["noise_floor"].get("reading_std"))
         + _scatter_text(report["noise_floor"].get("loaded_scatter"), report["alpha"]),
         "",
         f"**Detect.** The paper's model ({report['statics']} statics) against the noise floor: chi^2 = {det['chi2']:.1f} with {det['dof']} "
@@ -348,6 +352,15 @@ def markdown(report: dict, joint_names) -> str:
         lines.append(f"Validation prediction error / noise floor: {val['before']['ratio_to_floor']:.2f} before, "
                      f"{val['after']['ratio_to_floor']:.2f} after.{_reachable(val)}")  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def _reading_text(reading_std: list | None) -> str:
+    """The F/T readings' noise the model is tested with besides the scans' (:mod:`.reading_noise`)."""
+    if not reading_std:  # not known (setup.json without force_sensor.noise_std_N_Nm), or an older report
+        return ""
+    return "; plus the F/T readings' noise in the prediction: " + ", ".join(
+        f"{c} {s * 1e6:.2f}" for c, s in zip(COMPONENTS, reading_std)
+    )
 
 
 def _scatter_text(scatter: dict | None, alpha: float) -> str:

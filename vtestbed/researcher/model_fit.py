@@ -72,17 +72,20 @@ class ModelFit:
 
 
 class Whitener:
-    """x -> C^-1 x / sqrt(f) per test, with ``C C^T`` the noise floor's 6x6 covariance.
+    """x -> C^-1 x / sqrt(f) per test, with ``C C^T`` the noise floor's 6x6 covariance (the
+    scans' plus the F/T readings' where known: ``NoiseFloor.displacement_covariance``).
 
     The floor is estimated from ``nu`` samples, so a quadratic form in its inverse is inflated by
     ``f = nu / (nu - 7)`` on average (inverse Wishart, 6 components: :func:`.floor_calibration.inflation`);
     dividing it out keeps the mean of chi^2 at its degrees of freedom (measured: chi^2 124 +- 17 on
     114 degrees of freedom with nu = 75 before, the expected 114 * 75 / 68 = 126). Its tail is
-    wider than chi^2's: the tests take their p-values from :mod:`.floor_calibration`.
+    wider than chi^2's: the tests take their p-values from :mod:`.floor_calibration`. The
+    readings' part is known, not estimated, so ``f`` slightly overstates the sum's inflation
+    (by 0.2 % with the readings at 2 % of the floor).
     """
 
     def __init__(self, floor: NoiseFloor):
-        cov = np.asarray(floor.covariance, dtype=float)
+        cov = np.asarray(floor.displacement_covariance, dtype=float)
         nu = int(floor.n_samples)
         if nu <= 7:  # first: too few samples is also why a covariance is singular
             raise OutOfRangeError(

@@ -112,6 +112,9 @@ class NoiseFloor:
     loaded_scans: int = 1  # loaded scans averaged into each displacement
     # a .loaded_scatter.LoadedScatter when the loaded block was scanned again (:func:`.scan_mean.against_scan_mean`)
     loaded_scatter: object = None
+    # (6, 6) the F/T readings' noise in the model's prediction [m, rad], known rather than
+    # estimated (:mod:`.reading_noise`); None: not known. The model is tested against the sum.
+    reading_covariance: np.ndarray | None = None
 
     def for_scan_mean(self, scans: int, loaded_scans: int = 1) -> NoiseFloor:
         """The floor of a displacement measured from the mean of ``scans`` unloaded scans to the
@@ -138,6 +141,13 @@ class NoiseFloor:
             covariance=self.covariance * _scan_mean_scale(scans, loaded_scans),
             reference_scans=int(scans),
             loaded_scans=int(loaded_scans),
+        )
+
+    @property
+    def displacement_covariance(self) -> np.ndarray:
+        """(6, 6) the scans' covariance plus the readings' (``reading_covariance``, if known)."""
+        return (
+            self.covariance if self.reading_covariance is None else self.covariance + self.reading_covariance
         )
 
     @property
@@ -218,6 +228,11 @@ class NoiseFloor:
             "reference_scans": self.reference_scans,
             "loaded_scans": self.loaded_scans,
             "loaded_scatter": self.loaded_scatter and self.loaded_scatter.to_dict(),
+            **(
+                {}
+                if self.reading_covariance is None
+                else {"reading_std": np.sqrt(np.diag(self.reading_covariance)).tolist()}
+            ),
         }
 
     def summary(self) -> str:

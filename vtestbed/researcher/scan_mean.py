@@ -50,6 +50,7 @@ from .diagnose import DEFAULT_ALPHA, require_floor
 from .loaded_scatter import loaded_scatter
 from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
 from .noise_floor import NoiseFloor, dataset_floor, repeat_scan_frames, scan_deviations
+from .reading_noise import with_reading_noise
 
 __all__ = [
     "CREEP_ALPHA",
@@ -187,15 +188,16 @@ def load_with_floor(
     (required: :func:`.diagnose.require_floor` says how to record them), and every displacement
     against its test's mean unloaded frame (to its mean loaded frame when the dataset has
     loaded repeats that pass the creep check at ``creep_alpha``) with the floor for it
-    (:func:`against_scan_mean`). ``edges``: with each test's apparent block edges (the scale check's,
-    :mod:`.block_size`).
+    (:func:`against_scan_mean`), the F/T readings' noise added to that floor where setup.json gives
+    it (:func:`.reading_noise.with_reading_noise`). ``edges``: with each test's apparent block edges
+    (the scale check's, :mod:`.block_size`).
     """
     setup, measurements = load_measurements(root, edges=edges)
     frames = repeat_scan_frames(root, measurements)
     floor = require_floor(dataset_floor(root, frames), root)
     loaded = loaded_scan_frames(root, measurements)
     measurements, floor = against_scan_mean(measurements, frames, floor, loaded, creep_alpha)
-    return setup, measurements, floor
+    return setup, measurements, with_reading_noise(floor, measurements, setup)
 
 
 def against_reference(
