@@ -123,6 +123,14 @@ def test_diagnosis_page_shows_report_json_numbers(pages, diagnosis_folder):
     floor = t.tables["noise-floor"][1:]
     for row, s in zip(floor, report["noise_floor"]["component_std"]):
         assert float(row[1]) == pytest.approx(s * 1e6, abs=5e-4 + 1e-12)
+    # the F/T readings' noise the model is tested with besides the scans', as report.json has it
+    reading = ", ".join(
+        f"{c} {s * 1e6:.3f}" for c, s in zip("x y z rx ry rz".split(), report["noise_floor"]["reading_std"])
+    )
+    assert (
+        "reading-noise" in t.ids
+        and f"in its prediction, std {reading} (um, urad)" in pages["diagnosis"].read_text()
+    )
     cands = t.tables["candidates-round-1"][1:]
     by_label = {c["label"]: c for c in report["rounds"][0]["tests"]}
     assert {r[0] for r in cands} == set(by_label)

@@ -29,6 +29,13 @@ def noise_floor(folder: ResultFolder) -> Section:
     table = Table(["component", "noise floor std [um | urad]", "baseline residual RMS / floor"], rows,
                   id="noise-floor")  # fmt: skip
     blocks = [facts, table]
+    if reading := nf.get(
+        "reading_std"
+    ):  # the F/T readings' noise in the prediction (researcher/reading_noise.py)
+        blocks.append(Text(["The model is tested against the floor plus the F/T readings' noise in its prediction, std "
+                            + ", ".join(f"{c} {s * 1e6:.3f}" for c, s in zip(COMPONENTS, reading))
+                            + " (um, urad): one reading at each end of a test, which repeat scans do not average."],
+                           id="reading-noise"))  # fmt: skip
     if scatter := nf.get("loaded_scatter"):  # the loaded repeats' creep check (researcher/loaded_scatter.py)
         check = LoadedScatter.from_dict(scatter)
         blocks.append(Text([check.sentence(r["alpha"])], id="loaded-scatter"))

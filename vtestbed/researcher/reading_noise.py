@@ -8,7 +8,7 @@ reading), ``d = J diag(c) J^T w`` (the paper's Eq. 17), so a reading's noise ent
 ``J diag(c) J^T dw``. Repeat scans average the scanner's noise down, not this: there is one
 reading at each end of a test. With 8 scans at each end it is about 2 % of the scan floor's
 variance on the paper's 20 tests, and a chi^2 against the scan floor alone then rejects a right
-model at 2 % where its level is 1 % (docs/discrepancy.md, "The F/T sensor's reading noise").
+model at 2 % where its level is 1 % (docs/discrepancy.md, "The F/T readings' noise in the floor").
 
 :func:`with_reading_noise` adds its covariance to the floor the model is tested against: the
 mean over the identification tests of ``G_t S_w G_t^T``, ``G_t = J_t diag(c) J_t^T`` with the
