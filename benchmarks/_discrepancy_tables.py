@@ -261,7 +261,7 @@ def report(worlds, results, cal, overlap, seeds, wall, t_prep) -> None:
         tot = np.array([t["total"] for t in times])
         parts = {k: np.mean([t[k] for t in times]) for k in ("measure", "floor", "diagnose")}
         print(f"\n## Cost\n\n- per trial (one worker, one core): {tot.mean():.2f} s mean ({tot.min():.2f}-{tot.max():.2f}): "
-              f"reduce 25 tests {parts['measure']:.2f} s, noise floor from 75 repeat scans {parts['floor']:.2f} s, "
+              f"reduce 25 tests {parts['measure']:.2f} s, noise floor from {25 * _discrepancy_worlds.REPEATS} repeat scans {parts['floor']:.2f} s, "
               f"name + validation gap {parts['diagnose']:.3f} s")  # fmt: skip
         print(f"- {len(times)} trials in {wall:.0f} s wall ({wall / len(times):.2f} s per trial on the pool); "
               f"physics (prepare) {t_prep:.0f} s of worker time in total")  # fmt: skip
