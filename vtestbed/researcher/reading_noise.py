@@ -28,8 +28,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..dataset import DatasetSetup
+from ..errors import OutOfRangeError
 from .identify import stack
 from .measure import TestMeasurement, wrench_at_block
+from .model_fit import Whitener
 from .noise_floor import NoiseFloor
 
 __all__ = ["reading_covariance", "wrench_change_covariance", "with_reading_noise"]
@@ -69,18 +71,13 @@ def with_reading_noise(
     ident = [m for m in measurements if m.group == "identification"]
     if setup.sensor_noise_std is None or not ident or not np.any(setup.sensor_noise_std):
         return floor
-    if not np.all(np.isfinite(floor.covariance)) or np.linalg.eigvalsh(floor.covariance).min() <= 0:
+    try:
+        white = Whitener(floor)  # the scans' floor: no reading part yet
+    except OutOfRangeError:  # the model fit refuses this floor later, with the same message
         return floor
-    whiten = np.linalg.inv(np.linalg.cholesky(floor.covariance))
     a = stack([m.jacobian for m in ident], [m.wrench for m in ident])
     d = np.concatenate([m.displacement for m in ident])
-    compliance = np.linalg.lstsq(_per_test(whiten, a), _per_test(whiten, d), rcond=None)[0]
+    compliance = np.linalg.lstsq(white(a), white(d), rcond=None)[0]
     # abs: a compliance the tests barely determine may come out negative; its size is what counts
     covariance = reading_covariance(ident, setup, np.abs(compliance))
     return dataclasses.replace(floor, reading_covariance=covariance)
-
-
-def _per_test(matrix: np.ndarray, stacked: np.ndarray) -> np.ndarray:
-    """``matrix`` (6, 6) applied to each test's 6 rows of ``stacked`` (6 T, ...)."""
-    blocks = stacked.reshape(-1, 6, *stacked.shape[1:])
-    return np.einsum("ij,tj...->ti...", matrix, blocks).reshape(stacked.shape)
