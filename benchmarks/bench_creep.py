@@ -32,6 +32,7 @@ from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.researcher.loaded_scatter import loaded_scatter
 from vtestbed.researcher.measure import identify_measurements
 from vtestbed.researcher.noise_floor import noise_floor_from_frames
+from vtestbed.researcher.reading_noise import with_reading_noise
 from vtestbed.researcher.scan_mean import against_scan_mean
 from vtestbed.world.effects import LoadCreep
 
@@ -53,6 +54,7 @@ def prepared_world():
 def _stiffness_error(ms, unloaded, loaded, creep_alpha, truth) -> np.ndarray:
     """(n,) relative stiffness error of the identification tests measured against the scan means."""
     measured, floor = against_scan_mean(ms, unloaded, noise_floor_from_frames(unloaded), loaded, creep_alpha)
+    floor = with_reading_noise(floor, measured, prepared_world().setup)  # as `identify` does
     result = identify_measurements(measured, "gls_floor", noise_floor=floor)
     return result.stiffness / truth - 1.0
 

@@ -31,6 +31,7 @@ import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.researcher.measure import identify_measurements
 from vtestbed.researcher.noise_floor import noise_floor_from_frames
+from vtestbed.researcher.reading_noise import with_reading_noise
 from vtestbed.researcher.scan_mean import REFERENCES, against_reference
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,6 +59,7 @@ def trial(args) -> np.ndarray:
     err, std = [], []
     for method, reference in WAYS:
         measured, floor_r = against_reference(reference, ms, frames, floor)
+        floor_r = with_reading_noise(floor_r, measured, prepared.setup)  # as `identify` does
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = identify_measurements(measured, method, names, noise_floor=floor_r)

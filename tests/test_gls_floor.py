@@ -18,7 +18,8 @@ from vtestbed.errors import DatasetError, ScenarioError
 from vtestbed.experiment import identify_dataset, simulate
 from vtestbed.researcher.identify import stack
 from vtestbed.researcher.measure import stacked
-from vtestbed.researcher.noise_floor import estimate_noise_floor
+from vtestbed.researcher.reading_noise import with_reading_noise
+from vtestbed.researcher.repeat_scans import estimate_noise_floor
 from vtestbed.scenario import parse_scenario
 
 cli_main = importlib.import_module("vtestbed.cli.main")
@@ -40,13 +41,16 @@ def dataset(tmp_path_factory):
 
 def test_gls_floor_is_the_dense_gls_with_the_floor_covariance(dataset):
     _, root = dataset
-    _, measurements, result = identify_dataset(root, "gls_floor")
+    setup, measurements, result = identify_dataset(root, "gls_floor")
     floor = estimate_noise_floor(root, measurements)
     assert result.method == "gls_floor" and floor.n_samples == 3 * N_TESTS
     jac, wrench, disp = stacked(measurements)
     a, d = stack(jac, wrench), disp.reshape(-1)
+    # the F/T readings' noise (checked against the sensor's own draws in test_reading_noise.py)
+    readings = with_reading_noise(floor, measurements, setup).reading_covariance
+    assert 1e-4 < np.trace(readings) / np.trace(floor.covariance) < 0.05
     # the floor's covariance times its sampling inflation nu / (nu - 7), nu = 24 repeat samples
-    cov = floor.covariance * 24 / 17
+    cov = (floor.covariance + readings) * 24 / 17
     w = np.kron(np.eye(N_TESTS), np.linalg.inv(cov))  # dense (6T, 6T) reference
     normal = a.T @ w @ a
     c_ref = np.linalg.solve(normal, a.T @ w @ d)
@@ -87,21 +91,27 @@ def test_without_repeat_scans_every_entry_point_says_what_to_record(tmp_path, ca
 def test_identify_estimates_the_floor_once_and_reports_the_one_it_weighted_with(dataset, capsys, monkeypatch):
     import json
 
-    from vtestbed.researcher import noise_floor
+    from vtestbed.researcher import repeat_scans
 
     _, root = dataset
     calls = []
-    frames = noise_floor.repeat_scan_frames
-    monkeypatch.setattr(noise_floor, "repeat_scan_frames", lambda *a, **k: calls.append(1) or frames(*a, **k))
+    frames = repeat_scans.repeat_scan_frames
+    monkeypatch.setattr(
+        repeat_scans, "repeat_scan_frames", lambda *a, **k: calls.append(1) or frames(*a, **k)
+    )
     assert cli_main.main(["identify", str(root), "--method", "gls_floor", "--json", "--quiet"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(calls) == 1  # the repeat scans are fitted once: the weights and the report share them
     # reference: the floor refitted from the dataset's clouds alone (no reduced tests passed in)
-    independent = noise_floor.estimate_noise_floor(root)
-    # it weighted with the floor times its sampling inflation nu / (nu - 7) (nu = 24 samples)
+    independent = repeat_scans.estimate_noise_floor(root)
+    setup, measurements, _ = identify_dataset(root, "fgls")
+    readings = with_reading_noise(independent, measurements, setup).reading_covariance
+    # it weighted with the scans' and the readings' covariance times the sampling inflation
+    # nu / (nu - 7) (nu = 24 samples), and reports the readings' stds
     np.testing.assert_allclose(
-        out["displacement_cov"], independent.covariance * 24 / 17, rtol=1e-12, atol=1e-30
+        out["displacement_cov"], (independent.covariance + readings) * 24 / 17, rtol=1e-12, atol=1e-30
     )
+    np.testing.assert_allclose(out["noise_floor"]["reading_std"], np.sqrt(np.diag(readings)), rtol=1e-12)
     np.testing.assert_allclose(
         out["noise_floor"]["covariance"], independent.covariance, rtol=1e-12, atol=1e-30
     )

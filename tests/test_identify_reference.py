@@ -11,11 +11,12 @@ from scan_mean_helpers import scipy_mean_frame
 
 from vtestbed.campaigns.montecarlo import prepare, trial
 from vtestbed.cli.main import main
+from vtestbed.dataset_identification import identify_dataset_with_floor
 from vtestbed.errors import DatasetError, ScenarioError, UnknownNameError
 from vtestbed.experiment import identify_dataset, simulate
 from vtestbed.researcher.identify import stack
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.researcher.noise_floor import repeat_scan_frames
+from vtestbed.researcher.repeat_scans import repeat_scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame
 
@@ -48,11 +49,20 @@ def test_identify_reference_mean_solves_with_the_displacements_against_the_mean_
 
 
 def test_gls_floor_against_the_mean_scan_has_the_floor_scaled_by_the_closed_form(repeat_dataset):
-    """gls_floor's compliance covariance is (A^T W A)^-1 with W the floor's inverse: against the mean
-    of m = 3 scans the floor is (1 + 1/m) / 2 = 2/3 of the single-scan one, so is the covariance."""
-    _, _, scan = identify_dataset(repeat_dataset, "gls_floor", reference="scan")
-    _, _, mean = identify_dataset(repeat_dataset, "gls_floor", reference="mean")
-    np.testing.assert_allclose(mean.compliance_cov, scan.compliance_cov * 2 / 3, rtol=1e-9)
+    """gls_floor's compliance covariance is (A^T W A)^-1 with W the inverse of the floor (times its
+    sampling inflation nu / (nu - 7), nu = 12) plus the F/T readings' part: against the mean of
+    m = 3 scans the scans' part is (1 + 1/m) / 2 = 2/3 of the single-scan one; the readings' part
+    does not average."""
+    _, _, scan, scan_floor = identify_dataset_with_floor(repeat_dataset, "gls_floor", reference="scan")
+    _, tests, mean, mean_floor = identify_dataset_with_floor(repeat_dataset, "gls_floor", reference="mean")
+    np.testing.assert_allclose(mean_floor.covariance, scan_floor.covariance * 2 / 3, rtol=1e-12)
+    assert mean_floor.reading_covariance is not None
+    tests = [m for m in tests if m.group == "identification"]
+    a = stack([m.jacobian for m in tests], [m.wrench for m in tests])
+    weight = np.linalg.inv((mean_floor.covariance + mean_floor.reading_covariance) * 12 / 5)
+    np.testing.assert_allclose(
+        mean.compliance_cov, np.linalg.inv(a.T @ np.kron(np.eye(len(tests)), weight) @ a), rtol=1e-9
+    )
     assert np.max(np.abs(mean.compliance / scan.compliance - 1)) > 1e-4  # other displacements
 
 

@@ -78,7 +78,8 @@ def test_a_failed_creep_check_measures_to_the_own_loaded_scan(tmp_path):
     (0 + 1 + 2) / 3 * 5 % = 5 % of the deflection beyond the test's own loaded scan (closed form).
     The check fails, so the displacements are the own scan's (to 1e-12 m) and the floor is scaled
     for one loaded scan; averaged regardless (``creep_alpha=None``) they carry the 5 %."""
-    from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+    from vtestbed.researcher.noise_floor import noise_floor_from_frames
+    from vtestbed.researcher.repeat_scans import repeat_scan_frames
 
     root = simulate(scenario(5.0, "creepleft", noise=False, repeats=1, loaded_repeats=2), tmp_path / "d")
     _, own = load_measurements(root)

@@ -15,7 +15,8 @@ from vtestbed.dataset_repeats import LOADED_REPEATS_FILE, REPEATS_FILE, read_rep
 from vtestbed.errors import DatasetError, OutOfRangeError, ScenarioError
 from vtestbed.experiment import identify_dataset, simulate
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+from vtestbed.researcher.noise_floor import noise_floor_from_frames
+from vtestbed.researcher.repeat_scans import repeat_scan_frames
 from vtestbed.researcher.scan_mean import against_scan_mean, load_with_floor, loaded_scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector

@@ -89,7 +89,8 @@ def test_a_creeping_block_is_caught_and_named():
 def test_a_simulated_dataset_carries_the_check_to_its_floor(loaded_dataset):  # noqa: F811
     """No creep in the truth world: the check passes, its ratios those of the two floors."""
     from vtestbed.researcher.measure import load_measurements
-    from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+    from vtestbed.researcher.noise_floor import noise_floor_from_frames
+    from vtestbed.researcher.repeat_scans import repeat_scan_frames
     from vtestbed.researcher.scan_mean import loaded_scan_frames
 
     _, root = loaded_dataset

@@ -16,13 +16,8 @@ from vtestbed.ply import read_ply, write_ply
 from vtestbed.researcher import cloud
 from vtestbed.researcher.kinematics import ArmKinematics
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.researcher.noise_floor import (
-    NoiseFloor,
-    estimate_noise_floor,
-    noise_floor_from_frames,
-    scan_deviations,
-    scan_frames,
-)
+from vtestbed.researcher.noise_floor import NoiseFloor, noise_floor_from_frames, scan_deviations
+from vtestbed.researcher.repeat_scans import estimate_noise_floor, scan_frames
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame, homogeneous, invert, matrix_from_rotation_vector
 from vtestbed.world import physics

@@ -243,7 +243,7 @@ def _raw_ply(path, pts) -> Path:
 
 
 def test_non_finite_points_name_the_test_and_the_file(tmp_path, lab, robot):
-    from vtestbed.researcher.noise_floor import estimate_noise_floor
+    from vtestbed.researcher.repeat_scans import estimate_noise_floor
 
     pts = np.random.default_rng(1).normal(size=(50, 3))
     pts[[3, 7], 1], pts[9, 2] = np.nan, np.inf  # 3 points, one coordinate each

@@ -12,7 +12,8 @@ from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.errors import DatasetError, OutOfRangeError
 from vtestbed.experiment import simulate
 from vtestbed.researcher.measure import load_measurements
-from vtestbed.researcher.noise_floor import noise_floor_from_frames, repeat_scan_frames
+from vtestbed.researcher.noise_floor import noise_floor_from_frames
+from vtestbed.researcher.repeat_scans import repeat_scan_frames
 from vtestbed.researcher.scan_mean import against_scan_mean, common_scan_count, load_with_floor, mean_frame
 from vtestbed.scenario import parse_scenario
 from vtestbed.transforms import displacement_in_block_frame, homogeneous, matrix_from_rotation_vector

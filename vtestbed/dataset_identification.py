@@ -85,7 +85,7 @@ def identify_dataset_with_floor(
     t1 = time.perf_counter()
     noise_floor = None
     if floor or method == "gls_floor" or reference != "scan":  # None without repeats: gls_floor says so
-        from .researcher.noise_floor import dataset_floor, repeat_scan_frames
+        from .researcher.repeat_scans import dataset_floor, repeat_scan_frames
 
         frames = repeat_scan_frames(root, measurements)
         noise_floor = dataset_floor(root, frames)
@@ -93,6 +93,10 @@ def identify_dataset_with_floor(
         measurements, noise_floor = against_reference(
             reference, measurements, frames, noise_floor, root, loaded
         )
+        if noise_floor is not None:  # the F/T readings' noise, where setup.json states it
+            from .researcher.reading_noise import with_reading_noise
+
+            noise_floor = with_reading_noise(noise_floor, measurements, setup)
     result = identify_measurements(
         measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
         source=str(root),

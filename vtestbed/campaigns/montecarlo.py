@@ -14,7 +14,7 @@ A trial with seed ``s`` consumes the random numbers in the same order as
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -27,6 +27,7 @@ from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
 from ..researcher.noise_floor import noise_floor_from_frames
+from ..researcher.reading_noise import with_reading_noise
 from ..scenario import Scenario, pose_field
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
@@ -225,6 +226,11 @@ def trial(
         )
         where = f"scenario {prepared.scenario.name!r}"
         measurements, floor = against_reference(reference, measurements, frames, floor, where, loaded)
+        if floor is not None:  # the readings' noise the dataset's setup.json would state
+            setup = prepared.setup
+            if sensor is not None:
+                setup = replace(setup, sensor_noise_std=tuple(sensor.noise_std))
+            floor = with_reading_noise(floor, measurements, setup)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(
@@ -258,11 +264,11 @@ def repeat_frames(
 
     The repeats are drawn as ``simulate`` writes them (:func:`~vtestbed.world.repeats.repeat_rng`
     or ``loaded_repeat_rng`` of trial ``seed``) with the world's effects, and fitted by the
-    researcher's pipeline (:func:`~vtestbed.researcher.noise_floor.scan_frames`, loaded repeats
+    researcher's pipeline (:func:`~vtestbed.researcher.repeat_scans.scan_frames`, loaded repeats
     :func:`~vtestbed.researcher.scan_mean.loaded_repeat_frames`, as for a dataset);
     ``measurements`` are the trial's reduced tests (their frames are reused).
     """
-    from ..researcher.noise_floor import scan_frames
+    from ..researcher.repeat_scans import scan_frames
     from ..researcher.scan_mean import loaded_repeat_frames
     from ..world.repeats import draw_repeat_scans, loaded_repeat_geometries, loaded_repeat_rng, repeat_rng
 

@@ -31,7 +31,8 @@ from .measure import (
     predict_displacement,
     wrench_at_block,
 )
-from .noise_floor import NoiseFloor, estimate_noise_floor
+from .noise_floor import NoiseFloor
+from .repeat_scans import estimate_noise_floor
 from .report import convergence, plot_convergence, plot_validation, validation
 from .scale_term import ScaleTerm, settle_scale
 from .scan_mean import against_scan_mean, load_with_floor

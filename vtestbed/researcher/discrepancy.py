@@ -116,8 +116,7 @@ def diagnose(
                         "reference_scans": floor.reference_scans, "loaded_scans": floor.loaded_scans,
                         "loaded_scatter": floor.loaded_scatter and floor.loaded_scatter.to_dict(),
                         # the F/T readings' noise in the prediction (reading_noise), tested with the scans'
-                        "reading_std": None if floor.reading_covariance is None
-                        else np.sqrt(np.diag(floor.reading_covariance)).tolist()},
+                        "reading_std": None if floor.reading_std is None else floor.reading_std.tolist()},
         "scale_check": scale and scale.to_dict(),  # None: a mesh target, or fewer than 3 tests
         "scale_term": term and term.to_dict(),  # None: scanner_scale not among the candidates
         "detect": {

@@ -108,7 +108,7 @@ def loaded_scatter(
     ----------
     unloaded_frames, loaded_frames : mapping test_id -> sequence of (4, 4) arrays
         Per test, the fitted frames of its scans of that block (the test's own first), as
-        :func:`.noise_floor.repeat_scan_frames` and :func:`.scan_mean.loaded_scan_frames` give them.
+        :func:`.repeat_scans.repeat_scan_frames` and :func:`.scan_mean.loaded_scan_frames` give them.
     """
     if not unloaded_frames or not loaded_frames:
         return None

@@ -223,11 +223,13 @@ def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
     ``source`` (the dataset folder, if any), the samples it has and the samples it needs (no floor,
     or one from too few repeat scans).
 
-    It is the floor's covariance times ``nu / (nu - 7)``, the mean inflation of the inverse of a
-    6 x 6 covariance estimated from ``nu`` repeat samples (:func:`.floor_calibration.inflation`, the
-    same as the model fit's :class:`.model_fit.Whitener`): the weights, so the estimate, do not
-    change; the reported std grows by its square root (1.11 at 12 tests with 3 repeats, 1.06 at 20),
-    which brings the z-score std into [0.8, 1.25] on every design of docs/uncertainty.md."""
+    It is the floor's displacement covariance (the scans' plus, where setup.json states the F/T
+    sensor's noise, the readings': ``NoiseFloor.displacement_covariance``) times ``nu / (nu - 7)``,
+    the mean inflation of the inverse of a 6 x 6 covariance estimated from ``nu`` repeat samples
+    (:func:`.floor_calibration.inflation`, the same as the model fit's :class:`.model_fit.Whitener`):
+    the inflation leaves the weights, so the estimate, as they are; the reported std grows by its
+    square root (1.11 at 12 tests with 3 repeats, 1.06 at 20), which brings the z-score std into
+    [0.8, 1.25] on every design of docs/uncertainty.md."""
     from .floor_calibration import inflation
 
     where = f"{source}: " if source else ""
@@ -241,7 +243,7 @@ def gls_floor_covariance(noise_floor, source: str | None = None) -> np.ndarray:
             f"test{'s' * (noise_floor.n_tests != 1)}): record {MIN_FLOOR_SAMPLES - noise_floor.n_samples} "
             "more repeat scans, or use method 'fgls'"
         )
-    return noise_floor.covariance * inflation(noise_floor.n_samples)
+    return noise_floor.displacement_covariance * inflation(noise_floor.n_samples)
 
 
 def identify_measurements(

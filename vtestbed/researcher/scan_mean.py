@@ -49,8 +49,9 @@ from ..transforms import displacement_in_block_frame, homogeneous, matrix_from_r
 from .diagnose import DEFAULT_ALPHA, require_floor
 from .loaded_scatter import loaded_scatter
 from .measure import TestMeasurement, fit_scan, load_measurements, read_scan
-from .noise_floor import NoiseFloor, dataset_floor, repeat_scan_frames, scan_deviations
+from .noise_floor import NoiseFloor, scan_deviations
 from .reading_noise import with_reading_noise
+from .repeat_scans import dataset_floor, repeat_scan_frames
 
 __all__ = [
     "CREEP_ALPHA",
@@ -105,7 +106,7 @@ def against_scan_mean(
         The dataset's reduced tests (:func:`.measure.load_measurements`).
     frames_by_test : mapping test_id -> sequence of (4, 4) arrays
         Per test, the frames of its unloaded scan (first, ``TestMeasurement.frame_unloaded``) and
-        its repeats (:func:`.noise_floor.repeat_scan_frames`).
+        its repeats (:func:`.repeat_scans.repeat_scan_frames`).
     floor : NoiseFloor
         The floor of single-scan displacements, from the same frames.
     loaded_frames : mapping test_id -> sequence of (4, 4) arrays, optional
@@ -148,7 +149,7 @@ def loaded_repeat_frames(
     loaded repeat (``clouds``, (N, 3) [m] in the scanner frame), each fitted from ``frame_loaded``
     as the loaded scan is fitted from the unloaded one (:func:`.measure.measure_arrays`); ``labels``
     name the repeats in errors. The dataset's and the campaign trial's loaded repeats both come
-    through here, as their unloaded repeats come through :func:`.noise_floor.scan_frames`."""
+    through here, as their unloaded repeats come through :func:`.repeat_scans.scan_frames`."""
     return [frame_loaded] + [fit_scan(c, frame_loaded, setup, label) for c, label in zip(clouds, labels)]
 
 
