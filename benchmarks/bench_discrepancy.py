@@ -117,8 +117,12 @@ def main() -> None:
     parser.add_argument("--known-floor", action="store_true",
                         help="size 'near the detection limit' by the power with the floor known exactly "
                              "(the sizes until 2026-11-26; default: against the trials' estimated floor)")  # fmt: skip
-    parser.add_argument(
+    only = parser.add_mutually_exclusive_group()
+    only.add_argument(
         "--limit-only", action="store_true", help="only the near-limit worlds (no clean, no x1)"
+    )
+    only.add_argument(
+        "--realistic-only", action="store_true", help="only the realistic sizes, x1 (no clean, no near-limit)"
     )
     parser.add_argument("--limit-factor", action="append", default=[], metavar="NAME=F",
                         help="size NAME's near-limit world at F instead of by its naming test's power: an "
@@ -176,12 +180,16 @@ def main() -> None:
                 calibrate, n, ref_floor, max_evals, args.statics, args.limit_power, args.known_floor
             ): n
             for n in names
-            if n not in given
+            if n not in given and not args.realistic_only
         }
-        for n, f in given.items():  # sized by another test: no noncentrality to report
+        for n, f in (
+            {} if args.realistic_only else given
+        ).items():  # sized by another test: no noncentrality to report
             cal_futures[pool.submit(given_size, n, f, args.limit_power)] = n
         overlap_future = pool.submit(candidate_overlap, ref_floor, args.statics)
         worlds = [] if args.limit_only else [(None, "clean", 1.0)] + [(n, "realistic", 1.0) for n in names]
+        if args.realistic_only:
+            worlds = worlds[1:]
         pending, results, t_prep = {}, {}, 0.0
         seed_list = [SEED0 + k for k in range(seeds)]
 
@@ -194,7 +202,7 @@ def main() -> None:
         for w in worlds:
             submit_world(*w)
         cal, waiting = {}, set(cal_futures) | set(pending)
-        total = seeds * (len(names) if args.limit_only else 1 + 2 * len(names))
+        total = seeds * (len(names) if args.limit_only or args.realistic_only else 1 + 2 * len(names))
         while waiting:
             done, waiting = wait(waiting, return_when=FIRST_COMPLETED)
             for fut in done:
