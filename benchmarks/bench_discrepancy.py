@@ -168,6 +168,8 @@ def main() -> None:
         except ValueError:
             parser.error(f"--limit-factor {item!r}: F must be a number")
 
+    limit_names = [] if args.realistic_only else names  # the effects sized near their detection limit
+    given = {n: f for n, f in given.items() if n in limit_names}
     t0 = time.perf_counter()
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx) as pool:
@@ -179,17 +181,14 @@ def main() -> None:
             pool.submit(
                 calibrate, n, ref_floor, max_evals, args.statics, args.limit_power, args.known_floor
             ): n
-            for n in names
-            if n not in given and not args.realistic_only
+            for n in limit_names
+            if n not in given
         }
-        for n, f in (
-            {} if args.realistic_only else given
-        ).items():  # sized by another test: no noncentrality to report
+        for n, f in given.items():  # sized by another test: no noncentrality to report
             cal_futures[pool.submit(given_size, n, f, args.limit_power)] = n
         overlap_future = pool.submit(candidate_overlap, ref_floor, args.statics)
-        worlds = [] if args.limit_only else [(None, "clean", 1.0)] + [(n, "realistic", 1.0) for n in names]
-        if args.realistic_only:
-            worlds = worlds[1:]
+        clean = [] if args.limit_only or args.realistic_only else [(None, "clean", 1.0)]
+        worlds = clean + ([] if args.limit_only else [(n, "realistic", 1.0) for n in names])
         pending, results, t_prep = {}, {}, 0.0
         seed_list = [SEED0 + k for k in range(seeds)]
 
@@ -202,7 +201,7 @@ def main() -> None:
         for w in worlds:
             submit_world(*w)
         cal, waiting = {}, set(cal_futures) | set(pending)
-        total = seeds * (len(names) if args.limit_only or args.realistic_only else 1 + 2 * len(names))
+        total = seeds * (len(worlds) + len(cal_futures))  # each calibration adds a near-limit world
         while waiting:
             done, waiting = wait(waiting, return_when=FIRST_COMPLETED)
             for fut in done:

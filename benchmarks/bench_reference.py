@@ -31,7 +31,6 @@ import vtestbed as vt
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.researcher.measure import identify_measurements
 from vtestbed.researcher.noise_floor import noise_floor_from_frames
-from vtestbed.researcher.reading_noise import with_reading_noise
 from vtestbed.researcher.scan_mean import REFERENCES, against_reference
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,8 +57,8 @@ def trial(args) -> np.ndarray:
     names, k_true = prepared.scenario.robot.joint_names, prepared.stiffness_true
     err, std = [], []
     for method, reference in WAYS:
-        measured, floor_r = against_reference(reference, ms, frames, floor)
-        floor_r = with_reading_noise(floor_r, measured, prepared.setup)  # as `identify` does
+        # with the F/T readings' noise in the floor, as `identify` does
+        measured, floor_r = against_reference(reference, ms, frames, floor, setup=prepared.setup)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = identify_measurements(measured, method, names, noise_floor=floor_r)

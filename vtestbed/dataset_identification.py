@@ -90,13 +90,9 @@ def identify_dataset_with_floor(
         frames = repeat_scan_frames(root, measurements)
         noise_floor = dataset_floor(root, frames)
         loaded = loaded_scan_frames(root, measurements) if reference != "scan" else None
-        measurements, noise_floor = against_reference(
-            reference, measurements, frames, noise_floor, root, loaded
+        measurements, noise_floor = against_reference(  # with the F/T readings' noise setup.json states
+            reference, measurements, frames, noise_floor, root, loaded, setup=setup
         )
-        if noise_floor is not None:  # the F/T readings' noise, where setup.json states it
-            from .researcher.reading_noise import with_reading_noise
-
-            noise_floor = with_reading_noise(noise_floor, measurements, setup)
     result = identify_measurements(
         measurements, method, load_robot(setup.robot).joint_names, strict=strict, noise_floor=noise_floor,
         source=str(root),

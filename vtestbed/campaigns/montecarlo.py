@@ -27,7 +27,6 @@ from ..researcher.identify import IdentificationResult
 from ..researcher.kinematics import ArmKinematics
 from ..researcher.measure import TestMeasurement, identify_measurements, measure_arrays
 from ..researcher.noise_floor import noise_floor_from_frames
-from ..researcher.reading_noise import with_reading_noise
 from ..scenario import Scenario, pose_field
 from ..world.physics import draw_readings, run_test_physics, test_rng
 from ..world.rig import Rig
@@ -225,12 +224,12 @@ def trial(
             else _trial_frames(prepared, seed, tests, measurements, noise, "loaded")
         )
         where = f"scenario {prepared.scenario.name!r}"
-        measurements, floor = against_reference(reference, measurements, frames, floor, where, loaded)
-        if floor is not None:  # the readings' noise the dataset's setup.json would state
-            setup = prepared.setup
-            if sensor is not None:
-                setup = replace(setup, sensor_noise_std=tuple(sensor.noise_std))
-            floor = with_reading_noise(floor, measurements, setup)
+        setup = prepared.setup  # its F/T noise is what the dataset's setup.json would state
+        if sensor is not None:
+            setup = replace(setup, sensor_noise_std=tuple(sensor.noise_std))
+        measurements, floor = against_reference(
+            reference, measurements, frames, floor, where, loaded, setup=setup
+        )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return identify_measurements(

@@ -209,6 +209,8 @@ def against_reference(
     source: str | Path = "the dataset",
     loaded_frames: Mapping[str, Sequence[np.ndarray]] | None = None,
     creep_alpha: float | None = CREEP_ALPHA,
+    *,
+    setup: DatasetSetup | None = None,
 ) -> tuple[list[TestMeasurement], NoiseFloor | None]:
     """The measurements and floor for ``reference`` (one of :data:`REFERENCES`).
 
@@ -217,27 +219,35 @@ def against_reference(
     creep check rejects them at ``creep_alpha``), asked for
     explicitly: a dataset without repeat scans (``frames_by_test`` None), or with a test that has
     none, raises a DatasetError naming ``source`` and those tests, instead of falling back to
-    the single scan as the discrepancy workflow does.
+    the single scan as the discrepancy workflow does. With ``setup`` the floor returned carries
+    the F/T readings' noise it states (:func:`.reading_noise.with_reading_noise`), as
+    :func:`load_with_floor`'s does.
     """
     if reference not in REFERENCES:
         raise UnknownNameError("displacement reference", reference, REFERENCES)
     if reference == "scan":
-        return list(measurements), floor
-    asked = (
-        f"{source}: reference 'mean' measures each displacement against the mean of its test's "
-        "unloaded scans (the test's own and its repeats)"
-    )
-    if frames_by_test is None or floor is None:
-        raise DatasetError(
-            f"{asked}, and the dataset has no repeat scans (repeats.csv): record 1 or more further scans "
-            "of the unloaded block per test (a simulated scenario: [scanner] repeats = 3), or use "
-            "reference 'scan' (the paper's)"
+        measurements = list(measurements)
+    else:
+        asked = (
+            f"{source}: reference 'mean' measures each displacement against the mean of its test's "
+            "unloaded scans (the test's own and its repeats)"
         )
-    lacking = [m.test_id for m in measurements if len(frames_by_test.get(m.test_id, ())) < 2]
-    if lacking:
-        raise DatasetError(
-            f"{asked}, and test{'s' * (len(lacking) > 1)} {', '.join(lacking[:10])}"
-            f"{' ...' if len(lacking) > 10 else ''} ha{'ve' if len(lacking) > 1 else 's'} no repeat "
-            "scan in repeats.csv: record at least one for every test, or use reference 'scan' (the paper's)"
+        if frames_by_test is None or floor is None:
+            raise DatasetError(
+                f"{asked}, and the dataset has no repeat scans (repeats.csv): record 1 or more further scans "
+                "of the unloaded block per test (a simulated scenario: [scanner] repeats = 3), or use "
+                "reference 'scan' (the paper's)"
+            )
+        lacking = [m.test_id for m in measurements if len(frames_by_test.get(m.test_id, ())) < 2]
+        if lacking:
+            raise DatasetError(
+                f"{asked}, and test{'s' * (len(lacking) > 1)} {', '.join(lacking[:10])}"
+                f"{' ...' if len(lacking) > 10 else ''} ha{'ve' if len(lacking) > 1 else 's'} no repeat "
+                "scan in repeats.csv: record at least one for every test, or use reference 'scan' (the paper's)"
+            )
+        measurements, floor = against_scan_mean(
+            measurements, frames_by_test, floor, loaded_frames, creep_alpha
         )
-    return against_scan_mean(measurements, frames_by_test, floor, loaded_frames, creep_alpha)
+    if setup is None or floor is None:
+        return measurements, floor
+    return measurements, with_reading_noise(floor, measurements, setup)
