@@ -1,11 +1,13 @@
 """scenarios/kr60_paper.toml holds exactly the clear tests of the paper's draw (drift test), and
-the truth world runs every one of them without a clearance finding."""
+the truth world runs every one of them without a clearance finding; so does
+scenarios/kr60_paper_a6.toml, the same draw with A6 free, whose other tables are the paper's."""
 
 import tomllib
 import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from vtestbed.campaigns.paper_tests import paper_tests
 from vtestbed.scenario import load_scenario
@@ -14,24 +16,39 @@ from vtestbed.world.rig import Rig
 from vtestbed.world.scanner import Scanner
 
 PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml"
+PAPER_A6 = PAPER.with_name("kr60_paper_a6.toml")
+# (file, free_a6, poses the clearance check dropped: each header comment says so)
+DRAWS = [(PAPER, False, 6), (PAPER_A6, True, 10)]
 
 
-def test_paper_scenario_is_what_the_draw_gives():
+@pytest.mark.parametrize(("path", "free_a6", "dropped"), DRAWS, ids=["paper", "free_a6"])
+def test_paper_scenario_is_what_the_draw_gives(path, free_a6, dropped):
     scenario = load_scenario(PAPER)
-    plan = paper_tests(scenario)
-    data = tomllib.loads(PAPER.read_text())
+    plan = paper_tests(scenario, free_a6=free_a6)
+    data = tomllib.loads(path.read_text())
     drawn = np.degrees(scenario.robot.dh_to_controller(plan.q))
     # the file rounds to 0.01 deg and the draw is on that grid: equal to round-off
     np.testing.assert_allclose(np.array(data["poses"]["angles_deg"]), drawn, atol=1e-9)
     assert tuple(data["load"]["hook"]) == plan.hooks
     assert tuple(data["load"]["anchor"]) == plan.anchors
-    assert plan.notes["poses_dropped"] == 6  # the header comment says so
+    assert plan.notes["poses_dropped"] == dropped  # the header comment says so
 
 
-def test_every_paper_test_is_clear_in_the_truth_world():
+def test_the_free_a6_draw_differs_from_the_paper_in_a6_only():
+    paper, free = (tomllib.loads(p.read_text()) for p in (PAPER, PAPER_A6))
+    a6 = np.array(free["poses"]["angles_deg"])[:, 5]
+    assert np.ptp(a6) > 180.0 and np.all(np.array(paper["poses"]["angles_deg"])[:, 5] == 45.0)
+    assert np.all(np.array(free["poses"]["angles_deg"])[:, 0] == 0.0)  # A1 = 0 as the paper's
+    for key in ("name", "description", "poses", "load"):
+        paper.pop(key), free.pop(key)
+    assert free == paper  # the lab, the sensors, the validation tests
+
+
+@pytest.mark.parametrize("path", [PAPER, PAPER_A6], ids=["paper", "free_a6"])
+def test_every_paper_test_is_clear_in_the_truth_world(path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a scenario test that is not clear warns at load
-        scenario = load_scenario(PAPER)
+        scenario = load_scenario(path)
     rig = Rig(scenario.robot, scenario.lab)
     for i, q in enumerate(scenario.poses):
         rig.command(q)

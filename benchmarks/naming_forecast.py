@@ -1,0 +1,208 @@
+"""Forecast of ``diagnose``'s first name near each effect's detection limit, from the linearised
+model: what a scenario's tests let the first round name, without ray-casting a single trial.
+
+Per effect, the size near the limit is ``bench_discrepancy.py``'s (:func:`_discrepancy_sizes.calibrate`:
+its own naming test has ``--limit-power`` against an estimated floor), or ``--factor NAME=F``. At
+that size the world is reduced noise-free (a perfect scanner and F/T sensor), the paper's model is
+fitted against the reference floor, and its whitened residual is the effect's *signal*; every
+candidate's whitened columns are taken at the fitted compliances, as the first round tests them.
+
+Datasets are then drawn as the trials' statistics fall. In the coordinates the true floor whitens:
+a floor estimate ``S* ~ Wishart(I, nu) / nu`` per draw (the repeat scans', ``nu`` = unloaded
+repeats x tests: :func:`vtestbed.researcher.floor_calibration.floor_whiteners`) that whitens
+signal plus noise ``N(0, I)``; each candidate's likelihood ratio beyond the stiffnesses against
+its critical value at the first round's level (alpha over the candidates: the p-values'
+reference, :func:`~vtestbed.researcher.floor_calibration.lr_critical_value`); and the significant
+candidates ranked by held-out error (PRESS, exact for a linear fit: ``model_fit``'s formula), as
+``diagnose`` ranks them. Printed per effect: its own test's pass rate, the share the first round
+names it (a label of its name, as the benchmark scores it: link 3 for a hidden link 2), with the
+Clopper-Pearson interval a trial count of ``--compare`` would have, its exact label's share, and
+each other label's share and nothing's.
+
+What it leaves out: the candidates' re-fit (bilinear terms and the exact statics are evaluated at
+the noise-free fit), the later rounds and the backward step (they can add a second name or drop a
+first), the block check's scale. The benchmark's trials measure all of that;
+docs/discrepancy_benchmark.md ("A forecast of the first name") compares the two.
+
+    .venv/bin/python benchmarks/naming_forecast.py [--scenario FILE] [--effects a,b] [--factor NAME=F]
+        [--limit-power 0.85] [--repeats 3] [--loaded-repeats 3] [--floors 400] [--draws 50] [--seed 1]
+
+Units: whitened displacements (chi^2 units); sizes as factors of each effect's realistic size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
+import numpy as np  # noqa: E402
+from _discrepancy_sizes import LIMIT_POWER, calibrate  # noqa: E402
+from _discrepancy_worlds import ALPHA, model_context, noise_free, prepared_world, reference_floor, true_labels  # noqa: E402
+from scipy.stats import beta  # noqa: E402
+
+from vtestbed.researcher.diagnose import Whitener, fit_model, identifiable  # noqa: E402
+from vtestbed.researcher.floor_calibration import floor_whiteners, lr_critical_value  # noqa: E402
+from vtestbed.researcher.identify import stack  # noqa: E402
+from vtestbed.world.effects import EFFECTS  # noqa: E402
+
+FORECAST_EFFECTS = ("link_compliance", "joint_coupling", "nonlinear_joint", "base_compliance",
+                    "ft_misalignment", "ft_bias_drift", "block_offset")  # fmt: skip
+# not forecast: the balancer (absorbed into k2 at its realistic size), the scale (the block check
+# names it: bench_block_size.py), the geometric error (opt-in), the creep (no candidate)
+RANK_TOL = 1e-10  # singular values below this fraction of the largest: no direction
+
+
+def orthonormal(x: np.ndarray, rank: int | None = None) -> np.ndarray:
+    """(N, r) orthonormal basis of the columns of ``x`` (N, k): ``rank`` directions, or as many as
+    :func:`_rank` counts."""
+    u = np.linalg.svd(x / np.linalg.norm(x, axis=0), full_matrices=False)[0]
+    return u[:, : _rank(x) if rank is None else rank]
+
+
+def _rank(x: np.ndarray) -> int:
+    """The rank of ``x``'s columns each scaled to unit norm (a term's columns are tiny in SI units
+    beside the compliances': the fits' rank, ``model_fit.scaled_svd``)."""
+    s = np.linalg.svd(x / np.linalg.norm(x, axis=0), compute_uv=False)
+    return int(np.sum(s > RANK_TOL * s[0]))
+
+
+def per_test(g: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(6T, k): the 6x6 ``g`` applied to every test's 6 rows of ``x`` (6T, k)."""
+    return np.einsum("ij,tjk->tik", g, x.reshape(-1, 6, x.shape[-1])).reshape(x.shape)
+
+
+def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> dict:
+    """The noise-free first round of effect ``name`` at ``factor``: the signal (6T,) in the true
+    floor's coordinates, the stiffness columns (6T, 6), each identifiable candidate's columns and
+    its critical likelihood ratio at the first round's level."""
+    prepared, pool = prepared_world(name, factor)
+    ctx = model_context(noise_free(prepared), prepared, statics)
+    base = fit_model(ctx, white, [])
+    unscale = math.sqrt(white.inflation)  # the Whitener divides by sqrt(inflation): undo it
+    ms = ctx.measurements
+    a = white(stack([m.jacobian for m in ms], [m.wrench for m in ms])) * unscale
+    signal = white(base.residuals.reshape(-1)) * unscale
+    nu = _discrepancy_worlds.REPEATS * len(prepared.tests)  # the trials' floor: validation tests too
+    level = ALPHA / len(pool)
+    cands = {}
+    for cand in identifiable(ctx, white, pool, base.compliance):
+        b = white(cand.columns(ctx, base.compliance)) * unscale
+        design = np.hstack([a, b])
+        df = _rank(design) - _rank(a)
+        if df <= 0:
+            continue  # absorbed whole: never significant
+        tested = np.r_[np.zeros(a.shape[1], bool), np.ones(b.shape[1], bool)]
+        cands[cand.label] = {"columns": b, "df": int(df), "name": cand.name,
+                             "crit": lr_critical_value(design, tested, df, nu, level)}  # fmt: skip
+    return {"signal": signal, "stiffness": a, "candidates": cands, "nu": nu, "level": level,
+            "own": true_labels(EFFECTS[name]()), "name": name, "chi2": float(np.sum(signal**2))}  # fmt: skip
+
+
+def press(u: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """(K,) leave-one-test-out error of the fits with orthonormal basis ``u`` (6T, r) and
+    residuals ``e`` (6T, K): ``sum_t |(I - U_t U_t^T)^-1 e_t|^2`` (``model_fit._leave_one_test_out``)."""
+    ut = u.reshape(-1, 6, u.shape[1])
+    hat = np.eye(6) - np.einsum("tik,tjk->tij", ut, ut)
+    loo = np.linalg.solve(hat, e.reshape(-1, 6, e.shape[1]))
+    return np.sum(loo**2, axis=(0, 1))
+
+
+def forecast(problem: dict, floors: int, draws: int, rng: np.random.Generator) -> dict:
+    """Counts over ``floors x draws`` datasets: own test significant, the first name (a label or
+    None), from the problem of :func:`effect_problem`."""
+    g_all = floor_whiteners(problem["nu"])[:floors]
+    labels = list(problem["candidates"])
+    named, own_pass = Counter(), 0
+    for g in g_all:
+        y = per_test(g, problem["signal"][:, None] + rng.standard_normal((problem["signal"].size, draws)))
+        s = orthonormal(per_test(g, problem["stiffness"]))
+        r = y - s @ (s.T @ y)
+        lr = np.empty((len(labels), draws))
+        err = np.empty((len(labels), draws))
+        for i, label in enumerate(labels):
+            c = problem["candidates"][label]
+            b = per_test(g, c["columns"])
+            q = orthonormal(b - s @ (s.T @ b), c["df"])
+            proj = q.T @ r
+            lr[i] = np.sum(proj**2, axis=0)
+            err[i] = press(np.hstack([s, q]), r - q @ proj)
+        crit = np.array([problem["candidates"][lab]["crit"] for lab in labels])
+        sig = lr > crit[:, None]
+        own = np.array([lab in problem["own"] for lab in labels])
+        own_pass += int(np.sum(sig[own].any(axis=0)))
+        score = np.where(sig, err, np.inf)
+        best = np.argmin(score, axis=0)
+        for k in range(draws):
+            named[labels[best[k]] if sig[best[k], k] else None] += 1
+    return {"n": len(g_all) * draws, "own_pass": own_pass, "named": named}
+
+
+def clopper_pearson(k: int, n: int) -> tuple[float, float]:
+    low = beta.ppf(0.025, k, n - k + 1) if k > 0 else 0.0
+    high = beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
+    return float(low), float(high)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenario", type=Path, default=_discrepancy_worlds.SCENARIO)
+    ap.add_argument("--effects", default=",".join(FORECAST_EFFECTS))
+    ap.add_argument("--factor", action="append", default=[], metavar="NAME=F",
+                    help="a size instead of the search (e.g. block_offset=0.662)")  # fmt: skip
+    ap.add_argument("--limit-power", type=float, default=LIMIT_POWER)
+    ap.add_argument("--statics", choices=("exact", "paper"), default="exact")
+    ap.add_argument("--repeats", type=int, default=_discrepancy_worlds.REPEATS)
+    ap.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS)
+    ap.add_argument("--ref-repeats", type=int, default=_discrepancy_worlds.REF_REPEATS)
+    ap.add_argument("--floors", type=int, default=400, help="floor draws (at most 400)")
+    ap.add_argument("--draws", type=int, default=50, help="noise draws per floor")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--compare", type=int, default=200, help="trials whose interval is printed beside")
+    args = ap.parse_args()
+    _discrepancy_worlds.set_repeats(args.repeats)
+    _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
+    _discrepancy_worlds.SCENARIO = args.scenario.resolve()
+    names = [n.strip() for n in args.effects.split(",") if n.strip()]
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        ap.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
+    given = dict(item.partition("=")[::2] for item in args.factor)
+    t0 = time.perf_counter()
+    ref_floor = reference_floor(args.ref_repeats)
+    white = Whitener(ref_floor)
+    print(f"# naming_forecast: {args.scenario.name}, {args.repeats}+{args.loaded_repeats} repeats, "
+          f"power {args.limit_power:g}, {args.floors} floors x {args.draws} draws, reference floor "
+          f"{time.perf_counter() - t0:.0f} s")  # fmt: skip
+    print(
+        "| effect | size | own test passes | named first | its interval at --compare trials | exact label | the rest |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | --- |")
+    rng = np.random.default_rng(args.seed)
+    for name in names:
+        if name in given:
+            factor = float(given[name])
+        else:
+            factor = calibrate(name, ref_floor, 6, args.statics, args.limit_power)["factor"]
+        problem = effect_problem(name, factor, white, args.statics)
+        out = forecast(problem, args.floors, args.draws, rng)
+        n, cands = out["n"], problem["candidates"]
+        # right as the benchmark scores it: a label of the hidden effect's name (link 3 for link 2)
+        right = sum(v for k, v in out["named"].items() if k is not None and cands[k]["name"] == name)
+        exact = sum(v for k, v in out["named"].items() if k in problem["own"])
+        k = round(right / n * args.compare)
+        low, high = clopper_pearson(k, args.compare)
+        rest = ", ".join(f"{lab or 'nothing'} {v / n:.1%}" for lab, v in out["named"].most_common()
+                         if lab not in problem["own"] and v / n >= 0.005)  # fmt: skip
+        print(f"| {name} | x{factor:.3g} | {out['own_pass'] / n:.1%} | **{right / n:.1%}** | "
+              f"{low:.0%}-{high:.0%} | {exact / n:.1%} | {rest} |", flush=True)  # fmt: skip
+    print(f"wall {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
