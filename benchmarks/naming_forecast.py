@@ -172,7 +172,15 @@ def main() -> None:
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         ap.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
-    given = dict(item.partition("=")[::2] for item in args.factor)
+    given = {}
+    for item in args.factor:
+        name, _, value = item.partition("=")
+        if name not in names:
+            ap.error(f"--factor {item!r}: {name!r} is not among --effects ({', '.join(names)})")
+        try:
+            given[name] = float(value)
+        except ValueError:
+            ap.error(f"--factor {item!r}: F must be a number")
     t0 = time.perf_counter()
     ref_floor = reference_floor(args.ref_repeats)
     white = Whitener(ref_floor)
@@ -186,7 +194,7 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     for name in names:
         if name in given:
-            factor = float(given[name])
+            factor = given[name]
         else:
             factor = calibrate(name, ref_floor, 6, args.statics, args.limit_power)["factor"]
         problem = effect_problem(name, factor, white, args.statics)

@@ -2,6 +2,7 @@
 the truth world runs every one of them without a clearance finding; so does
 scenarios/kr60_paper_a6.toml, the same draw with A6 free, whose other tables are the paper's."""
 
+import sys
 import tomllib
 import warnings
 from pathlib import Path
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from vtestbed.campaigns.paper_tests import paper_tests
+from vtestbed.errors import OutOfRangeError
 from vtestbed.scenario import load_scenario
 from vtestbed.world.clearance import truth_clearance
 from vtestbed.world.rig import Rig
@@ -42,6 +44,21 @@ def test_the_free_a6_draw_differs_from_the_paper_in_a6_only():
     for key in ("name", "description", "poses", "load"):
         paper.pop(key), free.pop(key)
     assert free == paper  # the lab, the sensors, the validation tests
+
+
+def test_the_variant_script_writes_the_free_a6_scenarios_tables():
+    sys.path.insert(0, str(PAPER.parents[1] / "benchmarks"))
+    import draw_paper_variant
+
+    def tables(text: str) -> str:
+        return text[text.index("[poses]") :]
+
+    assert tables(draw_paper_variant.variant_text(2023, free_a1=False)) == tables(PAPER_A6.read_text())
+
+
+def test_free_a1_alone_is_refused():
+    with pytest.raises(OutOfRangeError, match="free_a1 = True needs free_a6 = True"):
+        paper_tests(load_scenario(PAPER), free_a1=True)
 
 
 @pytest.mark.parametrize("path", [PAPER, PAPER_A6], ids=["paper", "free_a6"])

@@ -14,10 +14,12 @@ How they are drawn (the paper's Section 4, on the joint 2-3 map of the KR60-3):
 
 ``free_a6=True`` draws the same way with the wrist roll free: each pool pose's A6 uniform over a
 turn (after the pool's draw, from the same Generator; 80 poses in the pool, where the paper's
-draw needs 40), the rest as above. The paper holds A6 at 45 deg in every test, and on those tests
-the block's rotation and the F/T sensor's are hard to tell apart near their detection limits
-(docs/discrepancy_benchmark.md, "A forecast of the first name"); ``scenarios/kr60_paper_a6.toml``
-holds its 20 tests.
+draw needs 40), the rest as above; ``free_a1=True`` then draws A1 uniformly within
++-:data:`FREE_A1_DEG` too (the wrist centre's criterion does not depend on either). The paper
+holds A6 at 45 deg in every test, and on those tests the block's rotation and the F/T sensor's
+are hard to tell apart near their detection limits (docs/discrepancy_benchmark.md, "A forecast
+of the first name, and the paper's fixed A6"); ``scenarios/kr60_paper_a6.toml`` holds the 20
+tests of the seed-2023 draw with A6 free.
 
 Angles are KUKA controller degrees in the file and DH radians inside; tensions are N. Before
 clearance was checked, the file held the first 20 pool poses, seven of which a lab cannot run
@@ -30,6 +32,7 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import OutOfRangeError
 from ..researcher.kinematics import ArmKinematics
 from ..scenario import Scenario
 from .paper_set import rounded_pose, toml_rows, toml_strings
@@ -38,11 +41,16 @@ from .spec import pose_set_defaults
 
 PAPER_TESTS_SEED = 2023
 PAPER_TESTS_COUNT = 20
-FREE_A6_POOL = 80  # pool poses drawn with A6 free: a turned block rules out more of them
+FREE_A6_POOL = 80  # pool poses drawn with A6 (or A1) free: a turned block rules out more of them
+FREE_A1_DEG = 45.0  # A1's range with free_a1 [deg]: a choice; the plan's checks keep what the lab can run
 
 
 def paper_tests(
-    scenario: Scenario, n: int = PAPER_TESTS_COUNT, seed: int = PAPER_TESTS_SEED, free_a6: bool = False
+    scenario: Scenario,
+    n: int = PAPER_TESTS_COUNT,
+    seed: int = PAPER_TESTS_SEED,
+    free_a6: bool = False,
+    free_a1: bool = False,
 ) -> TestPlan:
     """The first ``n`` clear tests of the paper's kappa-region draw (see the module doc).
 
@@ -56,6 +64,8 @@ def paper_tests(
         Seed of the pose draw.
     free_a6 : bool
         Draw A6 uniformly over a turn instead of the paper's 45 deg (see the module doc).
+    free_a1 : bool
+        Draw A1 uniformly within +-FREE_A1_DEG instead of the paper's 0 (with ``free_a6`` only).
 
     Returns
     -------
@@ -65,6 +75,8 @@ def paper_tests(
     """
     robot = scenario.robot
     options = pose_set_defaults(scenario.lab)  # the paper's 200 N and block zone for the KR60
+    if free_a1 and not free_a6:
+        raise OutOfRangeError("paper_tests: free_a1 = True needs free_a6 = True (the draws it extends)")
     if free_a6:
         options = dataclasses.replace(options, pool=FREE_A6_POOL)
     rng = np.random.default_rng(seed)
@@ -72,6 +84,8 @@ def paper_tests(
     q = pool.q.copy()
     if free_a6:  # theta6 (DH) uniform over a turn: A6 too, whatever its offset and sign
         q[:, 5] = rng.uniform(-np.pi, np.pi, len(q))
+    if free_a1:
+        q[:, 0] = rng.uniform(-np.radians(FREE_A1_DEG), np.radians(FREE_A1_DEG), len(q))
     rounded = rounded_pose(robot, q)[1]  # the file's 0.01-deg grid, as paper_set draws
     checker = FeasibilityChecker(scenario)
     kin = ArmKinematics(robot, scenario.lab.block_in_flange)
