@@ -152,6 +152,21 @@ def calibrate(
             "power_realistic": estimated_floor_power(s1), "power_at_limit": estimated_floor_power(records[best[0]])}  # fmt: skip
 
 
+def parse_factors(items, names, flag: str, error) -> dict[str, float]:
+    """Command-line sizes ``NAME=F`` as ``{name: F}``; ``error`` (argparse's ``parser.error``, which
+    exits with code 2) on a name outside ``names`` (the run's effects) or an F that is not a number."""
+    given = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in names:
+            error(f"{flag} {item!r}: {name!r} is not among --effects ({', '.join(names)})")
+        try:
+            given[name] = float(value)
+        except ValueError:
+            error(f"{flag} {item!r}: F must be a number")
+    return given
+
+
 def given_size(name: str, factor: float, power: float) -> dict:
     """A near-limit size given on the command line (``--limit-factor``), for an effect that another
     test than its naming test detects first (the scanner's scale: the block's size); ``power`` is

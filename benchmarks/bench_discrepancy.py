@@ -76,7 +76,7 @@ from pathlib import Path
 
 import _discrepancy_worlds  # before numpy: it sets the BLAS threads to 1 (in every spawned worker too)
 import numpy as np
-from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap, given_size
+from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap, given_size, parse_factors
 from _discrepancy_tables import clopper_pearson, report
 from _discrepancy_worlds import (  # the names bench_discriminate / bench_two_effects use
     ALPHA,
@@ -158,15 +158,7 @@ def main() -> None:
         parser.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
     seeds = 2 if args.quick else args.seeds
     max_evals = 3 if args.quick else 6
-    given = {}
-    for item in args.limit_factor:
-        name, _, value = item.partition("=")
-        if name not in names:
-            parser.error(f"--limit-factor {item!r}: {name!r} is not among --effects ({', '.join(names)})")
-        try:
-            given[name] = float(value)
-        except ValueError:
-            parser.error(f"--limit-factor {item!r}: F must be a number")
+    given = parse_factors(args.limit_factor, names, "--limit-factor", parser.error)
 
     limit_names = [] if args.realistic_only else names  # the effects sized near their detection limit
     given = {n: f for n, f in given.items() if n in limit_names}

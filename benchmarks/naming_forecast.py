@@ -42,7 +42,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import numpy as np  # noqa: E402
-from _discrepancy_sizes import LIMIT_POWER, calibrate  # noqa: E402
+from _discrepancy_sizes import LIMIT_POWER, calibrate, parse_factors  # noqa: E402
 from _discrepancy_worlds import ALPHA, model_context, noise_free, prepared_world, reference_floor, true_labels  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
@@ -172,15 +172,7 @@ def main() -> None:
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         ap.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
-    given = {}
-    for item in args.factor:
-        name, _, value = item.partition("=")
-        if name not in names:
-            ap.error(f"--factor {item!r}: {name!r} is not among --effects ({', '.join(names)})")
-        try:
-            given[name] = float(value)
-        except ValueError:
-            ap.error(f"--factor {item!r}: F must be a number")
+    given = parse_factors(args.factor, names, "--factor", ap.error)
     t0 = time.perf_counter()
     ref_floor = reference_floor(args.ref_repeats)
     white = Whitener(ref_floor)
