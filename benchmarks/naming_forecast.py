@@ -43,12 +43,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import numpy as np  # noqa: E402
 from _discrepancy_sizes import LIMIT_POWER, calibrate, parse_factors  # noqa: E402
+from _discrepancy_tables import clopper_pearson  # noqa: E402
 from _discrepancy_worlds import ALPHA, model_context, noise_free, prepared_world, reference_floor, true_labels  # noqa: E402
-from scipy.stats import beta  # noqa: E402
 
 from vtestbed.researcher.diagnose import Whitener, fit_model, identifiable  # noqa: E402
 from vtestbed.researcher.floor_calibration import floor_whiteners, lr_critical_value  # noqa: E402
-from vtestbed.researcher.identify import stack  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 FORECAST_EFFECTS = ("link_compliance", "joint_coupling", "nonlinear_joint", "base_compliance",
@@ -85,16 +84,15 @@ def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> d
     ctx = model_context(noise_free(prepared), prepared, statics)
     base = fit_model(ctx, white, [])
     unscale = math.sqrt(white.inflation)  # the Whitener divides by sqrt(inflation): undo it
-    ms = ctx.measurements
-    a = white(stack([m.jacobian for m in ms], [m.wrench for m in ms])) * unscale
+    a = base.design * unscale  # the paper's model: the whitened compliance columns
     signal = white(base.residuals.reshape(-1)) * unscale
     nu = _discrepancy_worlds.REPEATS * len(prepared.tests)  # the trials' floor: validation tests too
     level = ALPHA / len(pool)
-    cands = {}
+    cands, rank_a = {}, _rank(a)
     for cand in identifiable(ctx, white, pool, base.compliance):
         b = white(cand.columns(ctx, base.compliance)) * unscale
         design = np.hstack([a, b])
-        df = _rank(design) - _rank(a)
+        df = _rank(design) - rank_a
         if df <= 0:
             continue  # absorbed whole: never significant
         tested = np.r_[np.zeros(a.shape[1], bool), np.ones(b.shape[1], bool)]
@@ -118,6 +116,8 @@ def forecast(problem: dict, floors: int, draws: int, rng: np.random.Generator) -
     None), from the problem of :func:`effect_problem`."""
     g_all = floor_whiteners(problem["nu"])[:floors]
     labels = list(problem["candidates"])
+    crit = np.array([problem["candidates"][lab]["crit"] for lab in labels])
+    own = np.array([lab in problem["own"] for lab in labels])
     named, own_pass = Counter(), 0
     for g in g_all:
         y = per_test(g, problem["signal"][:, None] + rng.standard_normal((problem["signal"].size, draws)))
@@ -132,21 +132,13 @@ def forecast(problem: dict, floors: int, draws: int, rng: np.random.Generator) -
             proj = q.T @ r
             lr[i] = np.sum(proj**2, axis=0)
             err[i] = press(np.hstack([s, q]), r - q @ proj)
-        crit = np.array([problem["candidates"][lab]["crit"] for lab in labels])
         sig = lr > crit[:, None]
-        own = np.array([lab in problem["own"] for lab in labels])
         own_pass += int(np.sum(sig[own].any(axis=0)))
         score = np.where(sig, err, np.inf)
         best = np.argmin(score, axis=0)
         for k in range(draws):
             named[labels[best[k]] if sig[best[k], k] else None] += 1
     return {"n": len(g_all) * draws, "own_pass": own_pass, "named": named}
-
-
-def clopper_pearson(k: int, n: int) -> tuple[float, float]:
-    low = beta.ppf(0.025, k, n - k + 1) if k > 0 else 0.0
-    high = beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
-    return float(low), float(high)
 
 
 def main() -> None:
