@@ -72,6 +72,15 @@ def set_repeats(repeats: int) -> None:
     os.environ["VTESTBED_BENCH_REPEATS"] = str(repeats)
 
 
+def set_scenario(path: Path) -> None:
+    """``SCENARIO`` here and in the environment, which the spawned workers read on import; the
+    prepared world of another scenario is dropped (its key names the effect and size only)."""
+    global SCENARIO
+    SCENARIO = Path(path).resolve()
+    os.environ["VTESTBED_BENCH_SCENARIO"] = str(SCENARIO)
+    _PREPARED.clear()
+
+
 SEED0 = 2023  # trial k uses scenario seed SEED0 + k
 # The reference floor (only for choosing f_lim): 200 repeats of the 25 tests, 5000 samples, so its
 # variances err by about 2 %. With 10 repeats (until 2026-11-29) they erred by about 9 % (the floor of

@@ -150,8 +150,7 @@ def main() -> None:
                      "--repeats 1 or more (the floor needs them), --loaded-repeats 0 or more")  # fmt: skip
     _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
-    _discrepancy_worlds.SCENARIO = args.scenario.resolve()
-    os.environ["VTESTBED_BENCH_SCENARIO"] = str(_discrepancy_worlds.SCENARIO)
+    _discrepancy_worlds.set_scenario(args.scenario)
     names = [n.strip() for n in args.effects.split(",") if n.strip()]
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:

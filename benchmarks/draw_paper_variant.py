@@ -2,7 +2,8 @@
 
 The draw is :func:`vtestbed.campaigns.paper_tests.paper_tests` with ``free_a6`` (and ``free_a1``)
 at ``--seed``; every other table is ``scenarios/kr60_paper.toml``'s, as in
-``scenarios/kr60_paper_a6.toml`` (``--seed 2023``, A6 only). ``naming_forecast.py --scenario`` and
+``scenarios/kr60_paper_a6.toml`` (``--seed 2023``, A6 only) and ``scenarios/kr60_paper_a6a1.toml``
+(``--seed 2025 --free-a1``). ``naming_forecast.py --scenario`` and
 ``bench_discrepancy.py --scenario`` read the file (docs/discrepancy_benchmark.md, "A forecast of
 the first name, and the paper's fixed A6"). Angles in the file: KUKA controller degrees.
 

@@ -1,6 +1,7 @@
 """scenarios/kr60_paper.toml holds exactly the clear tests of the paper's draw (drift test), and
-the truth world runs every one of them without a clearance finding; so does
-scenarios/kr60_paper_a6.toml, the same draw with A6 free, whose other tables are the paper's."""
+the truth world runs every one of them without a clearance finding; so do
+scenarios/kr60_paper_a6.toml, the same draw with A6 free, and scenarios/kr60_paper_a6a1.toml, the
+draw of seed 2025 with A6 and A1 free, whose other tables are the paper's."""
 
 import sys
 import tomllib
@@ -19,14 +20,20 @@ from vtestbed.world.scanner import Scanner
 
 PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml"
 PAPER_A6 = PAPER.with_name("kr60_paper_a6.toml")
-# (file, free_a6, poses the clearance check dropped: each header comment says so)
-DRAWS = [(PAPER, False, 6), (PAPER_A6, True, 10)]
+PAPER_A6A1 = PAPER.with_name("kr60_paper_a6a1.toml")
+# (file, seed, free_a6, free_a1, poses the clearance check dropped: each header comment says so)
+DRAWS = [
+    (PAPER, 2023, False, False, 6),
+    (PAPER_A6, 2023, True, False, 10),
+    (PAPER_A6A1, 2025, True, True, 10),
+]
+IDS = ["paper", "free_a6", "free_a6_a1"]
 
 
-@pytest.mark.parametrize(("path", "free_a6", "dropped"), DRAWS, ids=["paper", "free_a6"])
-def test_paper_scenario_is_what_the_draw_gives(path, free_a6, dropped):
+@pytest.mark.parametrize(("path", "seed", "free_a6", "free_a1", "dropped"), DRAWS, ids=IDS)
+def test_paper_scenario_is_what_the_draw_gives(path, seed, free_a6, free_a1, dropped):
     scenario = load_scenario(PAPER)
-    plan = paper_tests(scenario, free_a6=free_a6)
+    plan = paper_tests(scenario, seed=seed, free_a6=free_a6, free_a1=free_a1)
     data = tomllib.loads(path.read_text())
     drawn = np.degrees(scenario.robot.dh_to_controller(plan.q))
     # the file rounds to 0.01 deg and the draw is on that grid: equal to round-off
@@ -36,24 +43,31 @@ def test_paper_scenario_is_what_the_draw_gives(path, free_a6, dropped):
     assert plan.notes["poses_dropped"] == dropped  # the header comment says so
 
 
-def test_the_free_a6_draw_differs_from_the_paper_in_a6_only():
-    paper, free = (tomllib.loads(p.read_text()) for p in (PAPER, PAPER_A6))
-    a6 = np.array(free["poses"]["angles_deg"])[:, 5]
-    assert np.ptp(a6) > 180.0 and np.all(np.array(paper["poses"]["angles_deg"])[:, 5] == 45.0)
-    assert np.all(np.array(free["poses"]["angles_deg"])[:, 0] == 0.0)  # A1 = 0 as the paper's
-    for key in ("name", "description", "poses", "load"):
+@pytest.mark.parametrize(("path", "free_a1"), [(PAPER_A6, False), (PAPER_A6A1, True)], ids=IDS[1:])
+def test_a_free_draw_differs_from_the_paper_in_its_free_angles_only(path, free_a1):
+    paper, free = (tomllib.loads(p.read_text()) for p in (PAPER, path))
+    angles = np.array(free["poses"]["angles_deg"])
+    assert np.ptp(angles[:, 5]) > 180.0 and np.all(np.array(paper["poses"]["angles_deg"])[:, 5] == 45.0)
+    if free_a1:  # uniform within +-45 deg (paper_tests.FREE_A1_DEG)
+        assert np.all(np.abs(angles[:, 0]) <= 45.0) and np.ptp(angles[:, 0]) > 45.0
+    else:
+        assert np.all(angles[:, 0] == 0.0)  # A1 = 0 as the paper's
+    for key in ("name", "description", "seed", "poses", "load"):
         paper.pop(key), free.pop(key)
     assert free == paper  # the lab, the sensors, the validation tests
 
 
-def test_the_variant_script_writes_the_free_a6_scenarios_tables():
+@pytest.mark.parametrize(
+    ("path", "seed", "free_a1"), [(PAPER_A6, 2023, False), (PAPER_A6A1, 2025, True)], ids=IDS[1:]
+)
+def test_the_variant_script_writes_the_free_scenarios_tables(path, seed, free_a1):
     sys.path.insert(0, str(PAPER.parents[1] / "benchmarks"))
     import draw_paper_variant
 
     def tables(text: str) -> str:
         return text[text.index("[poses]") :]
 
-    assert tables(draw_paper_variant.variant_text(2023, free_a1=False)) == tables(PAPER_A6.read_text())
+    assert tables(draw_paper_variant.variant_text(seed, free_a1=free_a1)) == tables(path.read_text())
 
 
 def test_free_a1_alone_is_refused():
@@ -61,7 +75,7 @@ def test_free_a1_alone_is_refused():
         paper_tests(load_scenario(PAPER), free_a1=True)
 
 
-@pytest.mark.parametrize("path", [PAPER, PAPER_A6], ids=["paper", "free_a6"])
+@pytest.mark.parametrize("path", [PAPER, PAPER_A6, PAPER_A6A1], ids=IDS)
 def test_every_paper_test_is_clear_in_the_truth_world(path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a scenario test that is not clear warns at load

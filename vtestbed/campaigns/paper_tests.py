@@ -19,7 +19,8 @@ draw needs 40), the rest as above; ``free_a1=True`` then draws A1 uniformly with
 holds A6 at 45 deg in every test, and on those tests the block's rotation and the F/T sensor's
 are hard to tell apart near their detection limits (docs/discrepancy_benchmark.md, "A forecast
 of the first name, and the paper's fixed A6"); ``scenarios/kr60_paper_a6.toml`` holds the 20
-tests of the seed-2023 draw with A6 free.
+tests of the seed-2023 draw with A6 free, ``scenarios/kr60_paper_a6a1.toml`` those of the
+seed-2025 draw with A6 and A1 free (the draw ``benchmarks/screen_test_sets.py`` kept of twelve).
 
 Angles are KUKA controller degrees in the file and DH radians inside; tensions are N. Before
 clearance was checked, the file held the first 20 pool poses, seven of which a lab cannot run
