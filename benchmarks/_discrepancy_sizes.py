@@ -152,6 +152,16 @@ def calibrate(
             "power_realistic": estimated_floor_power(s1), "power_at_limit": estimated_floor_power(records[best[0]])}  # fmt: skip
 
 
+def parse_effects(text: str, error) -> list[str]:
+    """``--effects a,b`` as a list of effect names; ``error`` (argparse's ``parser.error``, which
+    exits with code 2) on a name outside :data:`vtestbed.world.effects.EFFECTS`, listing them."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
+    return names
+
+
 def parse_factors(items, names, flag: str, error) -> dict[str, float]:
     """Command-line sizes ``NAME=F`` as ``{name: F}``; ``error`` (argparse's ``parser.error``, which
     exits with code 2) on a name outside ``names`` (the run's effects) or an F that is not a number."""

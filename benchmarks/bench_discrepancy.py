@@ -76,7 +76,14 @@ from pathlib import Path
 
 import _discrepancy_worlds  # before numpy: it sets the BLAS threads to 1 (in every spawned worker too)
 import numpy as np
-from _discrepancy_sizes import LIMIT_POWER, calibrate, candidate_overlap, given_size, parse_factors
+from _discrepancy_sizes import (
+    LIMIT_POWER,
+    calibrate,
+    candidate_overlap,
+    given_size,
+    parse_effects,
+    parse_factors,
+)
 from _discrepancy_tables import clopper_pearson, report
 from _discrepancy_worlds import (  # the names bench_discriminate / bench_two_effects use
     ALPHA,
@@ -151,10 +158,7 @@ def main() -> None:
     _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     _discrepancy_worlds.set_scenario(args.scenario)
-    names = [n.strip() for n in args.effects.split(",") if n.strip()]
-    unknown = [n for n in names if n not in EFFECTS]
-    if unknown:
-        parser.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
+    names = parse_effects(args.effects, parser.error)
     seeds = 2 if args.quick else args.seeds
     max_evals = 3 if args.quick else 6
     given = parse_factors(args.limit_factor, names, "--limit-factor", parser.error)

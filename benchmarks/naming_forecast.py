@@ -42,7 +42,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import numpy as np  # noqa: E402
-from _discrepancy_sizes import LIMIT_POWER, calibrate, parse_factors  # noqa: E402
+from _discrepancy_sizes import LIMIT_POWER, calibrate, parse_effects, parse_factors  # noqa: E402
 from _discrepancy_tables import clopper_pearson  # noqa: E402
 from _discrepancy_worlds import ALPHA, model_context, noise_free, prepared_world, reference_floor, true_labels  # noqa: E402
 
@@ -178,10 +178,7 @@ def main() -> None:
     _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     _discrepancy_worlds.set_scenario(args.scenario)
-    names = [n.strip() for n in args.effects.split(",") if n.strip()]
-    unknown = [n for n in names if n not in EFFECTS]
-    if unknown:
-        ap.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
+    names = parse_effects(args.effects, ap.error)
     given = parse_factors(args.factor, names, "--factor", ap.error)
     t0 = time.perf_counter()
     ref_floor = reference_floor(args.ref_repeats)

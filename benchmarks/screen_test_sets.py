@@ -36,12 +36,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
 import numpy as np  # noqa: E402
-from _discrepancy_sizes import candidate_overlap  # noqa: E402
+from _discrepancy_sizes import candidate_overlap, parse_effects  # noqa: E402
 from _discrepancy_worlds import reference_floor  # noqa: E402
 from draw_paper_variant import variant_text  # noqa: E402
 from naming_forecast import FORECAST_EFFECTS, forecast_effect  # noqa: E402
-
-from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 # the middle of issue 11's "near the detection limit" band (detected 80-90 % of the time), where its
 # naming target is set; bench_discrepancy.py's own default (LIMIT_POWER) is 50 %
@@ -111,10 +109,7 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=50, help="noise draws per floor")
     ap.add_argument("--forecast-seed", type=int, default=1)
     args = ap.parse_args()
-    names = [n.strip() for n in args.effects.split(",") if n.strip()]
-    unknown = [n for n in names if n not in EFFECTS]
-    if unknown:
-        ap.error(f"unknown effect {unknown[0]!r}; valid: {', '.join(EFFECTS)}")
+    names = parse_effects(args.effects, ap.error)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     args.out_dir.mkdir(parents=True, exist_ok=True)
     log = args.out_dir / "screen.jsonl"
