@@ -89,7 +89,8 @@ def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> d
     nu = _discrepancy_worlds.REPEATS * len(prepared.tests)  # the trials' floor: validation tests too
     level = ALPHA / len(pool)
     cands, rank_a = {}, _rank(a)
-    for cand in identifiable(ctx, white, pool, base.compliance):
+    testable = identifiable(ctx, white, pool, base.compliance)
+    for cand in testable:
         b = white(cand.columns(ctx, base.compliance)) * unscale
         design = np.hstack([a, b])
         df = _rank(design) - rank_a
@@ -98,8 +99,11 @@ def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> d
         tested = np.r_[np.zeros(a.shape[1], bool), np.ones(b.shape[1], bool)]
         cands[cand.label] = {"columns": b, "df": int(df), "name": cand.name,
                              "crit": lr_critical_value(design, tested, df, nu, level)}  # fmt: skip
+    hidden = name.split("+")  # "a+b": a pair hidden together (bench_two_effects.py)
     return {"signal": signal, "stiffness": a, "candidates": cands, "nu": nu, "level": level,
-            "own": true_labels(EFFECTS[name]()), "name": name, "chi2": float(np.sum(signal**2))}  # fmt: skip
+            "own": frozenset().union(*(true_labels(EFFECTS[n]()) for n in hidden)), "name": name,
+            "hidden": {n: true_labels(EFFECTS[n]()) for n in hidden}, "n_pool": len(testable),
+            "chi2": float(np.sum(signal**2))}  # fmt: skip
 
 
 def press(u: np.ndarray, e: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """benchmarks/screen_test_sets.py's bookkeeping, against references written by hand: the draws an
 interrupted run keeps (its ``screen.jsonl`` with a half-written last line), the max-min choice of
-the kept draw, the seed range, and the benchmark worlds' switch of scenario (a prepared world of
+the kept draw (effects against 80 %, pairs against 90 %), the seed range, and the benchmark worlds' switch of scenario (a prepared world of
 the previous scenario must not be reused: the cache's key names the effect and size only).
 """
 
@@ -18,11 +18,9 @@ import _discrepancy_worlds  # noqa: E402
 import screen_test_sets as screen  # noqa: E402
 
 
-def record(seed: int, shares: dict[str, float]) -> dict:
-    worst = min(shares, key=shares.get)
-    return {"seed": seed, "worst": worst, "worst_right": shares[worst],
-            "mean_right": sum(shares.values()) / len(shares),
-            "effects": {n: {"right": v} for n, v in shares.items()}}  # fmt: skip
+def record(seed: int, shares: dict[str, float], pairs: dict[str, float] | None = None) -> dict:
+    rec = {"seed": seed, "effects": {n: {"right": v} for n, v in shares.items()}, "pairs": pairs or {}}
+    return {**rec, **screen.margins(rec)}
 
 
 def test_an_interrupted_screen_keeps_its_finished_draws(tmp_path):
@@ -44,6 +42,21 @@ def test_the_kept_draw_is_the_best_worst_effect_not_the_best_mean():
         record(4, {"a": 0.81, "b": 0.81, "c": 0.81}),  # worst 0.81 too, lower mean than 2
     ]
     assert screen.best_draw(records)["seed"] == 2
+    assert records[0]["worst"] == "c" and records[0]["mean_right"] == pytest.approx(2.68 / 3)
+
+
+def test_a_pair_below_its_target_weighs_against_the_effects_margins():
+    records = [
+        record(1, {"a": 0.86, "b": 0.85}, {"x+y": 0.88}),  # effects +5 points, the pair -2: margin -2
+        record(2, {"a": 0.82, "b": 0.81}, {"x+y": 0.95}),  # effects +1, the pair +5: margin +1, kept
+        record(3, {"a": 0.90, "b": 0.79}, {"x+y": 0.99}),  # effect b -1
+    ]
+    assert [r["short"] for r in records] == ["x+y", "b", "b"]
+    assert [r["margin"] for r in records] == pytest.approx([-0.02, 0.01, -0.01])
+    assert screen.best_draw(records)["seed"] == 2
+    pairs_only = screen.margins({"effects": {}, "pairs": {"x+y": 0.93, "u+v": 0.97}})
+    assert pairs_only["worst"] is None and pairs_only["short"] == "x+y"
+    assert pairs_only["margin"] == pytest.approx(0.03)
 
 
 @pytest.mark.parametrize(("text", "seeds"), [("2023", [2023]), ("2023-2026", [2023, 2024, 2025, 2026])])
