@@ -163,13 +163,11 @@ def forecast_effect(name: str, factor: float | None, ref_floor, statics: str, po
             "exact": exact / n, "rest": rest}  # fmt: skip
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parse_forecast_args(ap: argparse.ArgumentParser) -> argparse.Namespace:
+    """Add the options every forecast takes (the scenario, the statics, the scans, the draws, the
+    trial count whose interval is printed) to ``ap``, parse, and set the benchmark worlds' scenario
+    and scans from them."""
     ap.add_argument("--scenario", type=Path, default=_discrepancy_worlds.SCENARIO)
-    ap.add_argument("--effects", default=",".join(FORECAST_EFFECTS))
-    ap.add_argument("--factor", action="append", default=[], metavar="NAME=F",
-                    help="a size instead of the search (e.g. block_offset=0.662)")  # fmt: skip
-    ap.add_argument("--limit-power", type=float, default=LIMIT_POWER)
     ap.add_argument("--statics", choices=("exact", "paper"), default="exact")
     ap.add_argument("--repeats", type=int, default=_discrepancy_worlds.REPEATS)
     ap.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS)
@@ -182,6 +180,16 @@ def main() -> None:
     _discrepancy_worlds.set_repeats(args.repeats)
     _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
     _discrepancy_worlds.set_scenario(args.scenario)
+    return args
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--effects", default=",".join(FORECAST_EFFECTS))
+    ap.add_argument("--factor", action="append", default=[], metavar="NAME=F",
+                    help="a size instead of the search (e.g. block_offset=0.662)")  # fmt: skip
+    ap.add_argument("--limit-power", type=float, default=LIMIT_POWER)
+    args = parse_forecast_args(ap)
     names = parse_effects(args.effects, ap.error)
     given = parse_factors(args.factor, names, "--factor", ap.error)
     t0 = time.perf_counter()

@@ -36,12 +36,12 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _discrepancy_worlds  # noqa: E402  (sets the BLAS threads to 1 before numpy)
+import _discrepancy_worlds  # noqa: E402, F401  (sets the BLAS threads to 1 before numpy)
 import numpy as np  # noqa: E402
 from _discrepancy_tables import clopper_pearson  # noqa: E402
 from _discrepancy_worlds import ALPHA, reference_floor  # noqa: E402
 from bench_two_effects import PAIRS  # noqa: E402
-from naming_forecast import effect_problem, orthonormal, per_test, press  # noqa: E402
+from naming_forecast import effect_problem, orthonormal, parse_forecast_args, per_test, press  # noqa: E402
 from scipy.stats import chi2 as chi2_dist  # noqa: E402
 
 from vtestbed.researcher.diagnose import MAX_TERMS, Whitener, step_level  # noqa: E402
@@ -218,21 +218,9 @@ def pair_shares(ends: Counter, hidden: dict[str, frozenset]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenario", type=Path, default=_discrepancy_worlds.SCENARIO)
     ap.add_argument("--pairs", default=",".join((*PAIRS, BLOCK_PAIR)))
-    ap.add_argument("--statics", choices=("exact", "paper"), default="exact")
-    ap.add_argument("--repeats", type=int, default=_discrepancy_worlds.REPEATS)
-    ap.add_argument("--loaded-repeats", type=int, default=_discrepancy_worlds.LOADED_REPEATS)
-    ap.add_argument("--ref-repeats", type=int, default=_discrepancy_worlds.REF_REPEATS)
-    ap.add_argument("--floors", type=int, default=400, help="floor draws (at most 400)")
-    ap.add_argument("--draws", type=int, default=50, help="noise draws per floor")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--compare", type=int, default=200, help="trials whose interval is printed beside")
-    args = ap.parse_args()
+    args = parse_forecast_args(ap)
     pairs = parse_pairs(args.pairs, ap.error)
-    _discrepancy_worlds.set_repeats(args.repeats)
-    _discrepancy_worlds.set_loaded_repeats(args.loaded_repeats)
-    _discrepancy_worlds.set_scenario(args.scenario)
     t0 = time.perf_counter()
     ref_floor = reference_floor(args.ref_repeats)
     print(f"# search_forecast: {args.scenario.name}, {args.repeats}+{args.loaded_repeats} repeats, "

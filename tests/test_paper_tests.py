@@ -1,7 +1,8 @@
 """scenarios/kr60_paper.toml holds exactly the clear tests of the paper's draw (drift test), and
 the truth world runs every one of them without a clearance finding; so do
-scenarios/kr60_paper_a6.toml, the same draw with A6 free, and scenarios/kr60_paper_a6a1.toml, the
-draw of seed 2025 with A6 and A1 free, whose other tables are the paper's."""
+scenarios/kr60_paper_a6.toml, the same draw with A6 free, and scenarios/kr60_paper_a6a1.toml and
+kr60_paper_a6a1_2033.toml, the draws of seeds 2025 and 2033 with A6 and A1 free, whose other tables
+are the paper's."""
 
 import sys
 import tomllib
@@ -21,13 +22,15 @@ from vtestbed.world.scanner import Scanner
 PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "kr60_paper.toml"
 PAPER_A6 = PAPER.with_name("kr60_paper_a6.toml")
 PAPER_A6A1 = PAPER.with_name("kr60_paper_a6a1.toml")
+PAPER_2033 = PAPER.with_name("kr60_paper_a6a1_2033.toml")
 # (file, seed, free_a6, free_a1, poses the clearance check dropped: each header comment says so)
 DRAWS = [
     (PAPER, 2023, False, False, 6),
     (PAPER_A6, 2023, True, False, 10),
     (PAPER_A6A1, 2025, True, True, 10),
+    (PAPER_2033, 2033, True, True, 9),
 ]
-IDS = ["paper", "free_a6", "free_a6_a1"]
+IDS = ["paper", "free_a6", "free_a6_a1", "free_a6_a1_2033"]
 
 
 @pytest.mark.parametrize(("path", "seed", "free_a6", "free_a1", "dropped"), DRAWS, ids=IDS)
@@ -43,7 +46,9 @@ def test_paper_scenario_is_what_the_draw_gives(path, seed, free_a6, free_a1, dro
     assert plan.notes["poses_dropped"] == dropped  # the header comment says so
 
 
-@pytest.mark.parametrize(("path", "free_a1"), [(PAPER_A6, False), (PAPER_A6A1, True)], ids=IDS[1:])
+@pytest.mark.parametrize(
+    ("path", "free_a1"), [(PAPER_A6, False), (PAPER_A6A1, True), (PAPER_2033, True)], ids=IDS[1:]
+)
 def test_a_free_draw_differs_from_the_paper_in_its_free_angles_only(path, free_a1):
     paper, free = (tomllib.loads(p.read_text()) for p in (PAPER, path))
     angles = np.array(free["poses"]["angles_deg"])
@@ -58,7 +63,9 @@ def test_a_free_draw_differs_from_the_paper_in_its_free_angles_only(path, free_a
 
 
 @pytest.mark.parametrize(
-    ("path", "seed", "free_a1"), [(PAPER_A6, 2023, False), (PAPER_A6A1, 2025, True)], ids=IDS[1:]
+    ("path", "seed", "free_a1"),
+    [(PAPER_A6, 2023, False), (PAPER_A6A1, 2025, True), (PAPER_2033, 2033, True)],
+    ids=IDS[1:],
 )
 def test_the_variant_script_writes_the_free_scenarios_tables(path, seed, free_a1):
     sys.path.insert(0, str(PAPER.parents[1] / "benchmarks"))
@@ -75,7 +82,7 @@ def test_free_a1_alone_is_refused():
         paper_tests(load_scenario(PAPER), free_a1=True)
 
 
-@pytest.mark.parametrize("path", [PAPER, PAPER_A6, PAPER_A6A1], ids=IDS)
+@pytest.mark.parametrize("path", [PAPER, PAPER_A6, PAPER_A6A1, PAPER_2033], ids=IDS)
 def test_every_paper_test_is_clear_in_the_truth_world(path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a scenario test that is not clear warns at load

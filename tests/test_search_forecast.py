@@ -19,19 +19,9 @@ from vtestbed.researcher.floor_calibration import floor_whiteners, lr_critical_v
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import naming_forecast  # noqa: E402
 import search_forecast  # noqa: E402
+from test_naming_forecast import explicit_press  # noqa: E402
 
 TESTS, NU, ALPHA, MAX_TERMS = 8, 40, 0.01, 3
-
-
-def explicit_press(x: np.ndarray, y: np.ndarray) -> float:
-    """Sum over tests of the squared error predicting each test's 6 rows from a fit without them."""
-    total = 0.0
-    for t in range(len(y) // 6):
-        keep = np.ones(len(y), bool)
-        keep[6 * t : 6 * t + 6] = False
-        beta = np.linalg.lstsq(x[keep], y[keep], rcond=None)[0]
-        total += float(np.sum((y[~keep] - x[~keep] @ beta) ** 2))
-    return total
 
 
 def two_effect_problem(rng: np.random.Generator, sizes: tuple[float, float]) -> dict:
