@@ -1,5 +1,5 @@
-"""Screen drawn test sets by the forecast of the first name near each effect's detection limit, and
-keep the draw whose worst effect is named most often.
+"""Screen drawn test sets by forecasts of the naming near each effect's detection limit and of
+two effects hidden at once, and keep the draw furthest above issue 11's targets.
 
 Each seed draws the paper's 20 tests with the wrist roll A6 free (and the base A1 with
 ``--free-a1``: ``draw_paper_variant.py``); every other table is ``scenarios/kr60_paper.toml``'s.
@@ -8,15 +8,17 @@ Per draw, each effect is sized where its own naming test has ``--limit-power`` a
 hidden at its realistic sizes and forecast through the whole search (``search_forecast.py``: both
 named?). The draw's score is its worst margin to issue 11's targets: an effect's share named first
 less 80 %, a pair's share with both named less 90 % (:data:`EFFECT_TARGET`, :data:`PAIR_TARGET`).
-With ``--pairs ""`` that is the worst effect's share, as before pairs were screened. Printed beside: how far the hardening joint's pattern and the
-balancer's overlap once the stiffnesses are projected out (their largest canonical correlation in
-the clean world, :func:`_discrepancy_sizes.candidate_overlap`), the pair that decided most draws
-tried. The screen runs no trials, only the virtual lab's noise-free worlds and the clean world's
-repeat scans, so a lab can screen its candidate draws in vtestbed before it books the robot.
+With ``--pairs ""`` that ranks the draws by the worst effect's share, as before pairs were
+screened. Printed beside: how far the hardening joint's pattern and the balancer's overlap once
+the stiffnesses are projected out (their largest canonical correlation in the clean world,
+:func:`_discrepancy_sizes.candidate_overlap`), the pair that decided most draws tried. The screen
+runs no trials, only the virtual lab's noise-free worlds and the clean world's repeat scans, so a
+lab can screen its candidate draws in vtestbed before it books the robot.
 
 Choosing the best of N by a noisy forecast flatters the winner (a winner's curse): the kept
 draw's forecast is an upper estimate, and only ``bench_discrepancy.py --scenario`` trials on it
-measure it. docs/discrepancy_benchmark.md ("Screening drawn test sets by the forecast") has a run.
+measure it. docs/discrepancy_benchmark.md has runs ("Screening drawn test sets by the forecast",
+effects only; "Screening for two hidden effects", the pair weighed).
 
 Written to ``--out-dir``: each draw's scenario (``kr60_a6[a1]_SEED.toml``) and ``screen.jsonl``,
 one line per finished draw; an interrupted run re-started with the same arguments skips the draws
