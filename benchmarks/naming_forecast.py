@@ -59,12 +59,12 @@ RANK_TOL = 1e-10  # singular values below this fraction of the largest: no direc
 
 def orthonormal(x: np.ndarray, rank: int | None = None) -> np.ndarray:
     """(N, r) orthonormal basis of the columns of ``x`` (N, k): ``rank`` directions, or as many as
-    :func:`_rank` counts."""
+    :func:`column_rank` counts."""
     u = np.linalg.svd(x / np.linalg.norm(x, axis=0), full_matrices=False)[0]
-    return u[:, : _rank(x) if rank is None else rank]
+    return u[:, : column_rank(x) if rank is None else rank]
 
 
-def _rank(x: np.ndarray) -> int:
+def column_rank(x: np.ndarray) -> int:
     """The rank of ``x``'s columns each scaled to unit norm (a term's columns are tiny in SI units
     beside the compliances': the fits' rank, ``model_fit.scaled_svd``)."""
     s = np.linalg.svd(x / np.linalg.norm(x, axis=0), compute_uv=False)
@@ -88,12 +88,12 @@ def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> d
     signal = white(base.residuals.reshape(-1)) * unscale
     nu = _discrepancy_worlds.REPEATS * len(prepared.tests)  # the trials' floor: validation tests too
     level = ALPHA / len(pool)
-    cands, rank_a = {}, _rank(a)
+    cands, rank_a = {}, column_rank(a)
     testable = identifiable(ctx, white, pool, base.compliance)
     for cand in testable:
         b = white(cand.columns(ctx, base.compliance)) * unscale
         design = np.hstack([a, b])
-        df = _rank(design) - rank_a
+        df = column_rank(design) - rank_a
         if df <= 0:
             continue  # absorbed whole: never significant
         tested = np.r_[np.zeros(a.shape[1], bool), np.ones(b.shape[1], bool)]

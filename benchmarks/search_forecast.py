@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 from _discrepancy_tables import clopper_pearson  # noqa: E402
 from _discrepancy_worlds import ALPHA, reference_floor  # noqa: E402
 from bench_two_effects import PAIRS  # noqa: E402
-from naming_forecast import effect_problem, orthonormal, parse_forecast_args, per_test, press  # noqa: E402
+from naming_forecast import column_rank, effect_problem, orthonormal, parse_forecast_args, per_test, press  # noqa: E402
 from scipy.stats import chi2 as chi2_dist  # noqa: E402
 
 from vtestbed.researcher.diagnose import MAX_TERMS, Whitener, step_level  # noqa: E402
@@ -53,11 +53,12 @@ BLOCK_PAIR = "block_offset+ft_misalignment"
 
 
 class _Critical:
-    """The critical likelihood ratios of one problem, computed once per (terms named, candidate,
-    level): the test of the candidate's columns beside the stiffnesses' and the named terms'."""
+    """The tests of one problem's candidates beside the stiffnesses and the named terms: each
+    candidate's degrees of freedom, once per (terms named, candidate), and its critical likelihood
+    ratio, once per (terms named, candidate, level)."""
 
     def __init__(self, problem: dict) -> None:
-        self.problem, self.cache = problem, {}
+        self.problem, self.dfs, self.crits = problem, {}, {}
 
     def columns(self, labels) -> np.ndarray:
         cands = self.problem["candidates"]
@@ -65,25 +66,25 @@ class _Critical:
 
     def df(self, named: tuple, label: str) -> int:
         """Directions ``label`` adds beside the stiffnesses and ``named`` (0: absorbed by them)."""
-        return self.get(named, label, None)[0]
+        key = (frozenset(named), label)
+        if key not in self.dfs:
+            without = column_rank(self.columns(sorted(named)))
+            self.dfs[key] = column_rank(self.columns([*sorted(named), label])) - without
+        return self.dfs[key]
 
-    def get(self, named: tuple, label: str, level: float | None) -> tuple[int, float]:
-        key = (frozenset(named), label, level)
-        if key not in self.cache:
-            without, design = self.columns(sorted(named)), self.columns([*sorted(named), label])
-            df = _rank_of(design) - _rank_of(without)
-            crit = np.inf
-            if df > 0 and level is not None:
-                tested = np.r_[
-                    np.zeros(without.shape[1], bool), np.ones(design.shape[1] - without.shape[1], bool)
-                ]
-                crit = lr_critical_value(design, tested, df, self.problem["nu"], level)
-            self.cache[key] = (int(df), float(crit))
-        return self.cache[key]
-
-
-def _rank_of(x: np.ndarray) -> int:
-    return orthonormal(x).shape[1]
+    def get(self, named: tuple, label: str, level: float) -> tuple[int, float]:
+        """(degrees of freedom, critical likelihood ratio at ``level``; inf where absorbed)."""
+        df, key = self.df(named, label), (frozenset(named), label, level)
+        if key not in self.crits:
+            self.crits[key] = np.inf
+            if df > 0:
+                design = self.columns([*sorted(named), label])
+                tested = (
+                    np.arange(design.shape[1])
+                    >= design.shape[1] - self.problem["candidates"][label]["columns"].shape[1]
+                )
+                self.crits[key] = float(lr_critical_value(design, tested, df, self.problem["nu"], level))
+        return df, self.crits[key]
 
 
 class _Draws:
