@@ -21,13 +21,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import numpy as np  # noqa: E402
+from _discrepancy_tables import clopper_pearson  # noqa: E402
 
-import vtestbed as vt
+import vtestbed as vt  # noqa: E402
 from vtestbed.campaigns.montecarlo import measure_trial, prepare, repeat_frames
 from vtestbed.researcher.loaded_scatter import loaded_scatter
 from vtestbed.researcher.measure import identify_measurements
@@ -102,7 +105,7 @@ def main() -> None:
     print("| ---: | ---: | ---: | ---: |")
     for j, rate in enumerate(rates):
         hits = int(np.sum(results[:, j, 0] < ALPHA))
-        lo, hi = _interval(hits, args.trials)
+        lo, hi = clopper_pearson(hits, args.trials)
         print(f"| {rate:g} | {hits}/{args.trials} ({hits / args.trials:.0%}) | {lo:.0%}-{hi:.0%} "
               f"| {np.median(results[:, j, 1]):.2f} |")  # fmt: skip
     n = errors.shape[-1]
@@ -120,15 +123,6 @@ def main() -> None:
             sem = errors[:, j, w].std(axis=0, ddof=1) / np.sqrt(args.trials) * 100
             cells = " | ".join(f"{m:+.3f} +- {e:.3f}" for m, e in zip(mean, sem))
             print(f"| {rate:g} | {label} | {cells} |")
-
-
-def _interval(k: int, n: int) -> tuple[float, float]:
-    """Clopper-Pearson 95 % interval of k successes in n."""
-    from scipy.stats import beta
-
-    lo = beta.ppf(0.025, k, n - k + 1) if k > 0 else 0.0
-    hi = beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
-    return float(lo), float(hi)
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ from _discrepancy_worlds import ALPHA, model_context, noise_free, prepared_world
 
 from vtestbed.researcher.diagnose import Whitener, fit_model, identifiable  # noqa: E402
 from vtestbed.researcher.floor_calibration import floor_whiteners, lr_critical_value  # noqa: E402
+from vtestbed.researcher.model_fit import leave_one_test_out  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 FORECAST_EFFECTS = ("link_compliance", "joint_coupling", "nonlinear_joint", "base_compliance",
@@ -106,15 +107,6 @@ def effect_problem(name: str, factor: float, white: Whitener, statics: str) -> d
             "chi2": float(np.sum(signal**2))}  # fmt: skip
 
 
-def press(u: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """(K,) leave-one-test-out error of the fits with orthonormal basis ``u`` (6T, r) and
-    residuals ``e`` (6T, K): ``sum_t |(I - U_t U_t^T)^-1 e_t|^2`` (``model_fit._leave_one_test_out``)."""
-    ut = u.reshape(-1, 6, u.shape[1])
-    hat = np.eye(6) - np.einsum("tik,tjk->tij", ut, ut)
-    loo = np.linalg.solve(hat, e.reshape(-1, 6, e.shape[1]))
-    return np.sum(loo**2, axis=(0, 1))
-
-
 def forecast(problem: dict, floors: int, draws: int, rng: np.random.Generator) -> dict:
     """Counts over ``floors x draws`` datasets: own test significant, the first name (a label or
     None), from the problem of :func:`effect_problem`."""
@@ -135,7 +127,7 @@ def forecast(problem: dict, floors: int, draws: int, rng: np.random.Generator) -
             q = orthonormal(b - s @ (s.T @ b), c["df"])
             proj = q.T @ r
             lr[i] = np.sum(proj**2, axis=0)
-            err[i] = press(np.hstack([s, q]), r - q @ proj)
+            err[i] = leave_one_test_out(np.hstack([s, q]), r - q @ proj)
         sig = lr > crit[:, None]
         own_pass += int(np.sum(sig[own].any(axis=0)))
         score = np.where(sig, err, np.inf)

@@ -41,11 +41,12 @@ import numpy as np  # noqa: E402
 from _discrepancy_tables import clopper_pearson  # noqa: E402
 from _discrepancy_worlds import ALPHA, reference_floor  # noqa: E402
 from bench_two_effects import PAIRS  # noqa: E402
-from naming_forecast import column_rank, effect_problem, orthonormal, parse_forecast_args, per_test, press  # noqa: E402
+from naming_forecast import column_rank, effect_problem, orthonormal, parse_forecast_args, per_test  # noqa: E402
 from scipy.stats import chi2 as chi2_dist  # noqa: E402
 
 from vtestbed.researcher.diagnose import MAX_TERMS, Whitener, step_level  # noqa: E402
 from vtestbed.researcher.floor_calibration import floor_whiteners, lr_critical_value  # noqa: E402
+from vtestbed.researcher.model_fit import leave_one_test_out  # noqa: E402
 from vtestbed.world.effects import EFFECTS  # noqa: E402
 
 # the pair the block offset's share of the two-effect target turns on (docs/discrepancy_benchmark.md)
@@ -59,6 +60,10 @@ class _Critical:
 
     def __init__(self, problem: dict) -> None:
         self.problem, self.dfs, self.crits = problem, {}, {}
+        # the first round's are the problem's own (the same design, mask and level): not recomputed
+        for label, cand in problem["candidates"].items():
+            self.dfs[(frozenset(), label)] = cand["df"]
+            self.crits[(frozenset(), label, problem["level"])] = cand["crit"]
 
     def columns(self, labels) -> np.ndarray:
         cands = self.problem["candidates"]
@@ -163,7 +168,7 @@ def _forward_round(named, remaining, level, idx, data: _Draws, crit: _Critical) 
         q = orthonormal(data.cols[lab] - v @ (v.T @ data.cols[lab]), df)
         proj = q.T @ r
         lr = np.sum(proj**2, axis=0)
-        err = press(np.hstack([v, q]), r - q @ proj)
+        err = leave_one_test_out(np.hstack([v, q]), r - q @ proj)
         score[i] = np.where(lr > c, err, np.inf)
     best = np.argmin(score, axis=0)
     return [remaining[b] if np.isfinite(score[b, j]) else None for j, b in enumerate(best)]

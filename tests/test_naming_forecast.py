@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from vtestbed.researcher.floor_calibration import lr_critical_value, lr_power
+from vtestbed.researcher.model_fit import leave_one_test_out
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import naming_forecast as forecast  # noqa: E402
@@ -30,13 +31,14 @@ def explicit_press(x: np.ndarray, y: np.ndarray) -> float:
     return total
 
 
-def test_press_equals_refits_without_each_test():
+def test_batched_press_equals_refits_without_each_test():
+    """``model_fit.leave_one_test_out`` on K residual columns at once, as the forecasts call it."""
     rng = np.random.default_rng(5)
     x = rng.standard_normal((6 * TESTS, 9)) * np.logspace(0, 6, 9)  # columns of very different scales
     y = rng.standard_normal((6 * TESTS, 3))
     u = forecast.orthonormal(x)
     e = y - u @ (u.T @ y)
-    got = forecast.press(u, e)
+    got = leave_one_test_out(u, e)
     want = [explicit_press(x, y[:, k]) for k in range(3)]
     assert got == pytest.approx(want, rel=1e-9)
 

@@ -36,9 +36,14 @@ def two_effect_problem(rng: np.random.Generator, sizes: tuple[float, float]) -> 
         part = cols @ coef
         part -= q @ (q.T @ part)
         signal += size * part / np.linalg.norm(part)
-    cands = {lab: {"columns": cols, "df": cols.shape[1]} for lab, cols in (("a", a), ("b", b), ("c", c))}
+    level = ALPHA / 3  # the first round's, and each candidate's critical value there, as effect_problem
+    cands = {}
+    for lab, cols in (("a", a), ("b", b), ("c", c)):
+        tested = np.r_[np.zeros(6, bool), np.ones(cols.shape[1], bool)]
+        crit = lr_critical_value(np.hstack([stiffness, cols]), tested, cols.shape[1], NU, level)
+        cands[lab] = {"columns": cols, "df": cols.shape[1], "crit": crit}
     return {"signal": signal, "stiffness": stiffness, "candidates": cands, "nu": NU, "n_pool": 3,
-            "hidden": {"A": frozenset({"a"}), "B": frozenset({"b"})}}  # fmt: skip
+            "level": level, "hidden": {"A": frozenset({"a"}), "B": frozenset({"b"})}}  # fmt: skip
 
 
 def reference_search(problem: dict, g: np.ndarray, y: np.ndarray) -> frozenset:
@@ -111,11 +116,13 @@ def test_search_matches_a_draw_by_draw_search_with_explicit_refits():
 
 def test_a_lone_candidate_is_named_at_its_tests_power():
     problem = two_effect_problem(np.random.default_rng(5), sizes=(5.0, 0.0))
-    problem["candidates"] = {"a": problem["candidates"]["a"]}
-    problem["n_pool"] = 1
-    ends = search_forecast.forecast_search(problem, 400, 50, np.random.default_rng(2))
     design = np.hstack([problem["stiffness"], problem["candidates"]["a"]["columns"]])
     tested = np.r_[np.zeros(6, bool), np.ones(2, bool)]
+    # a pool of one: its first round's level is alpha, and the search takes that critical value
+    # from the problem (as effect_problem gives it)
+    crit = lr_critical_value(design, tested, 2, NU, ALPHA)
+    problem.update(candidates={"a": {**problem["candidates"]["a"], "crit": crit}}, n_pool=1, level=ALPHA)
+    ends = search_forecast.forecast_search(problem, 400, 50, np.random.default_rng(2))
     power = lr_power(problem["signal"], design, tested, 2, NU, ALPHA)
     assert 0.5 < power < 0.95  # a case where the share can miss in either direction
     assert ends[frozenset({"a"})] / 20000 == pytest.approx(power, abs=0.012)  # 4 binomial std

@@ -34,7 +34,7 @@ class ModelFit:
     x: np.ndarray = field(repr=False)
     compliance_std: np.ndarray = field(default=None, repr=False)  # (n,) rad/(N*m), noise floor as known
     rank: int = 0  # independent columns of the fitted design: the parameters the data determine
-    press: float = float("nan")  # whitened leave-one-test-out prediction error (:func:`_leave_one_test_out`)
+    press: float = float("nan")  # whitened leave-one-test-out prediction error (:func:`leave_one_test_out`)
     design: np.ndarray = field(
         default=None, repr=False
     )  # (6T, k) the whitened columns at the last linearisation
@@ -155,13 +155,13 @@ def fit_model(
         theta_std[term.label] = dict(zip(term.params, std[at].tolist()))
     dof = len(d) - rank
     labels = tuple(t.label for t in terms)
-    press = _leave_one_test_out(basis, white_residuals)
+    press = leave_one_test_out(basis, white_residuals)
     owners = ("",) * n + tuple(t.label for t, block in zip(terms, cols) for _ in range(block.shape[1]))
     return ModelFit(labels, c, theta, theta_std, chi2, dof, residuals.reshape(-1, 6), x, std[:n], rank, press,
                     white(x_mat), owners, white.n_samples)  # fmt: skip
 
 
-def _leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float:
+def leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float | np.ndarray:
     """The whitened prediction error of each test from a fit without it, summed (PRESS, per test).
 
     For a linear fit with orthonormal basis ``U`` of its whitened columns, test ``t``'s
@@ -169,13 +169,27 @@ def _leave_one_test_out(basis: np.ndarray, white_residuals: np.ndarray) -> float
     fit cannot do without (a leverage of 1 in some direction) makes it ``inf``. For bilinear terms
     and the exact statics it is the error at the fit's last linearisation (the columns and the
     statics' gap are not re-evaluated without the test).
+
+    Parameters
+    ----------
+    basis : (6T, r) array
+        Orthonormal basis of the fit's whitened columns, a test's 6 rows together.
+    white_residuals : (6T,) or (6T, K) array
+        The fit's whitened residuals; K columns are K datasets fitted with the same columns
+        (the forecasts in benchmarks/ draw them in batches).
+
+    Returns
+    -------
+    float, or (K,) array for (6T, K) residuals
     """
     u = basis.reshape(-1, 6, basis.shape[1])
-    e = white_residuals.reshape(-1, 6)
+    e = white_residuals.reshape(len(u), 6, -1)
     hat = np.eye(6) - np.einsum("tik,tjk->tij", u, u)
     if np.linalg.eigvalsh(hat).min() <= 1e-9:
-        return float("inf")
-    return float(np.sum(np.linalg.solve(hat, e[..., None]) ** 2))
+        err = np.full(e.shape[2], np.inf)
+    else:
+        err = np.sum(np.linalg.solve(hat, e) ** 2, axis=(0, 1))
+    return float(err[0]) if white_residuals.ndim == 1 else err
 
 
 def _lstsq(xw: np.ndarray, dw: np.ndarray):
